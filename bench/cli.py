@@ -1,0 +1,163 @@
+"""The ``fixbench`` command line.
+
+Every user error (a bad case file, a bad argument) is one line on stderr naming the file or
+option, the key and the problem, with exit code 2 and no traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from cases.errors import FixbenchError
+
+
+def _problem(case: str, material: str | None, agents: int | None = None):
+    from cases.problem import load_problem
+
+    return load_problem(case, material=material, agents=agents)
+
+
+def _parse_layout(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"'{text}' is not a comma-separated list of candidate indices",
+                                 param_hint="--layout") from None
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def cli() -> None:
+    """fixbench: multi-robot fixture planning benchmarks on validated plate FEA."""
+
+
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
+def cases(as_json: bool) -> None:
+    """Table of catalog cases: part, DOFs, candidates, agents, tasks, joint-space size."""
+    import pandas as pd
+    from tqdm import tqdm
+
+    from cases.problem import Problem
+    from cases.spec import case_names, load_case_spec
+
+    rows = []
+    for name in tqdm(case_names(), desc="meshing cases", disable=as_json or not sys.stderr.isatty()):
+        p = Problem(load_case_spec(name))
+        rows.append({"case": name, "part": p.spec.part, "material": p.spec.material.name,
+                     "dofs": sum(int(fs.basis.N) for fs in p.model.fields.values()),
+                     "candidates": len(p.candidates), "agents": p.n_agents, "tasks": p.n_tasks,
+                     "joint_size": p.joint_size})
+    if as_json:
+        click.echo(json.dumps(rows, indent=1))
+    else:
+        df = pd.DataFrame(rows)
+        df["joint_size"] = df["joint_size"].map(lambda n: f"{n:.3g}")
+        click.echo(df.to_markdown(index=False))
+
+
+@cli.command()
+@click.argument("case")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG file to write.")
+def show(case: str, material: str | None, out: Path | None) -> None:
+    """Picture of CASE: part, mesh, candidates coloured by agent, supports, tasks."""
+    from bench.plots import show_case
+
+    problem = _problem(case, material)
+    path = show_case(problem, out or Path(f"{problem.name}.png"))
+    click.echo(f"wrote {path}")
+
+
+@cli.command()
+@click.argument("case")
+@click.option("--task", type=int, required=True, help="Task index.")
+@click.option("--layout", required=True, help="Candidate indices, one per agent: i1,...,ik.")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), help="Contour PNG of |u|.")
+@click.option("--vtk", type=click.Path(dir_okay=False, path_type=Path), help="VTU file for ParaView.")
+def evaluate(case, task, layout, material, as_json, plot, vtk) -> None:
+    """Deformation of one fixture layout of CASE for one task (one oracle sample)."""
+    idx = _parse_layout(layout)
+    problem = _problem(case, material)
+    ev = problem.evaluator()
+    d = ev.evaluate(task, [idx])
+    result = {"case": problem.name, "material": problem.spec.material.name, "task": task,
+              "layout": idx, **d.row(0), "samples": ev.samples}
+    if plot:
+        from bench.plots import field_plot
+
+        field_plot(problem, task, idx, plot)
+    if vtk:
+        from bench.plots import write_vtk
+
+        write_vtk(problem, task, idx, vtk)
+    if as_json:
+        click.echo(json.dumps(result, indent=1))
+    else:
+        for k, v in result.items():
+            unit = " m" if k.startswith("max_") else ""
+            click.echo(f"{k:>16}: {v:.6g}{unit}" if isinstance(v, float) else f"{k:>16}: {v}")
+
+
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list of checks.")
+def validate(as_json: bool) -> None:
+    """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%."""
+    from cases.analytic import validate as run
+
+    checks = run()
+    if as_json:
+        click.echo(json.dumps(checks, indent=1))
+    else:
+        import pandas as pd
+
+        click.echo(pd.DataFrame(checks).to_markdown(index=False, floatfmt=".5g"))
+    if any(c["rel_error"] > 0.01 for c in checks):
+        sys.exit(1)
+
+
+@cli.command()
+@click.option("--case", default="wing_panel", show_default=True, help="Case to measure.")
+@click.option("--batch", default=200_000, show_default=True, help="Layouts in the batched call.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
+def perf(case: str, batch: int, as_json: bool) -> None:
+    """Oracle against re-assembly + direct sparse solve, run side by side."""
+    from bench.perf import run_perf
+
+    res = run_perf(case, batch=batch, progress=not as_json)
+    if as_json:
+        click.echo(json.dumps(res, indent=1))
+    else:
+        for k, v in res.items():
+            click.echo(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI, turning user errors into one line and exit code 2."""
+    try:
+        cli.main(args=argv, prog_name="fixbench", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.Abort:
+        click.echo("fixbench: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        click.echo(f"fixbench: {exc.format_message()}", err=True)
+        return 2
+    except FixbenchError as exc:
+        click.echo(f"fixbench: {exc}", err=True)
+        return 2
+    except np.linalg.LinAlgError as exc:
+        click.echo(f"fixbench: numerical error: {exc}", err=True)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

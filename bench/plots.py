@@ -1,0 +1,96 @@
+"""Pictures of cases and deformation fields (matplotlib), and VTK export (meshio)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.tri as mtri  # noqa: E402
+import meshio  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cases.problem import Problem  # noqa: E402
+
+
+def _outline(ax, problem: Problem) -> None:
+    poly = problem.spec.polygon
+    for ring in (poly.exterior, *poly.interiors):
+        x, y = np.asarray(ring.coords).T * 1e3
+        ax.plot(x, y, color="black", lw=1.2)
+
+
+def show_case(problem: Problem, out: Path) -> Path:
+    """Part, mesh, fixture candidates coloured by agent, supports and task load points."""
+    model = problem.model
+    fig, ax = plt.subplots(figsize=(7, 7))
+    p = model.mesh.p * 1e3
+    ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
+    _outline(ax, problem)
+    colors = plt.get_cmap("tab10")
+    for a, idx in enumerate(problem.action_sets):
+        c = problem.candidates[idx] * 1e3
+        ax.scatter(c[:, 0], c[:, 1], s=4, color=colors(a % 10), label=f"agent {a} ({len(idx)})")
+    sup_pts = []
+    for name in model.active:
+        fs = model.fields[name]
+        nodes = np.flatnonzero(np.isin(fs.basis.nodal_dofs[0], fs.fixed))
+        sup_pts.append(model.mesh.p[:, nodes])
+    if sup_pts:
+        held = np.hstack(sup_pts) * 1e3
+        ax.scatter(held[0], held[1], marker="s", s=6, color="black", label="base support")
+    at = np.array([ld.at for t in problem.tasks for ld in t.loads if ld.at is not None])
+    if len(at):
+        ax.scatter(at[:, 0] * 1e3, at[:, 1] * 1e3, marker="x", s=10, color="red", label="task loads")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"{problem.name}: {problem.spec.material.name}, {model.mesh.t.shape[1]} elements, "
+                 f"{len(problem.candidates)} candidates, {problem.n_tasks} tasks", fontsize=9)
+    ax.legend(fontsize=7, loc="best", markerscale=2)
+    return _save(fig, out)
+
+
+def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
+    """Contour of the deformation magnitude |u| for one layout (direct solve, full field)."""
+    model = problem.model
+    vals = model.nodal(problem.solve_direct(task, layout))
+    mag = np.sqrt(vals["ux"] ** 2 + vals["uy"] ** 2 + vals["w"] ** 2) * 1e6
+    p = model.mesh.p * 1e3
+    fig, ax = plt.subplots(figsize=(7, 7))
+    tc = ax.tricontourf(mtri.Triangulation(p[0], p[1], model.mesh.t.T), mag, levels=30, cmap="viridis")
+    fig.colorbar(tc, ax=ax, label="|u| (um)")
+    _outline(ax, problem)
+    c = problem.candidates[np.asarray(layout).ravel()] * 1e3
+    ax.scatter(c[:, 0], c[:, 1], color="red", marker="o", s=30, label="fixtures")
+    at = [ld.at for ld in problem.tasks[task].loads if ld.at is not None]
+    if at:
+        at = np.array(at) * 1e3
+        ax.scatter(at[:, 0], at[:, 1], color="white", marker="x", s=40, label="load")
+    ax.set_aspect("equal")
+    ax.set_title(f"{problem.name}, task {task}: max |u| at nodes {mag.max():.3g} um", fontsize=9)
+    ax.legend(fontsize=7)
+    return _save(fig, out)
+
+
+def write_vtk(problem: Problem, task: int, layout, out: Path) -> Path:
+    """The displacement field at the mesh vertices as a VTU file for ParaView."""
+    model = problem.model
+    vals = model.nodal(problem.solve_direct(task, layout))
+    points = np.column_stack([model.mesh.p.T, np.zeros(model.mesh.p.shape[1])])
+    disp = np.column_stack([vals["ux"], vals["uy"], vals["w"]])
+    mesh = meshio.Mesh(points, [("triangle", model.mesh.t.T)],
+                       point_data={"displacement": disp, "magnitude": np.linalg.norm(disp, axis=1)})
+    out.parent.mkdir(parents=True, exist_ok=True)
+    mesh.write(out)
+    return out
+
+
+def _save(fig, out: Path) -> Path:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=130)
+    plt.close(fig)
+    return out

@@ -1,0 +1,210 @@
+"""The fast deformation oracle: Green's functions and a small Schur solve per layout.
+
+REFERENCE section 6. For each field, with the base supports' stiffness K factored once:
+
+- a fixture candidate j contributes constraint rows B_j (its pad's mean of each held component);
+- its *compliance columns* G_j = K^-1 B_j^T are one back-solve each and are computed lazily, the
+  first time a layout uses candidate j; from them we keep C_j = B G_j (the coupling of every
+  candidate row to j's rows) and H_j = P G_j (j's influence on the measurement points P);
+- each task's unconstrained response u0 = K^-1 f is solved once, with d0 = B u0 and P u0.
+
+A layout S (rows R) then costs a |R| x |R| solve: lambda = C_RR^-1 d0_R and
+u(P) = P u0 - H_R^T lambda. This equals the direct constrained solve of the same model to
+round-off (tested against :meth:`cases.fem.PlateModel.solve_direct`).
+
+What is stored, and why (memory): C and H are float64 (the oracle must match a direct solve to
+1e-9) and only rows of candidates that have been used are ever touched, so memory grows with the
+candidates a planner explores: for the 3,333-candidate wing panel with all of them used, C is
+(6,666^2 + 3,333^2) x 8 B = 0.44 GB and H 0.1 GB. Deformation is measured at a fixed set of
+physical points (:func:`cases.geometry.measurement_points`), not at every node.
+
+The per-layout work is a numba kernel, parallel over layouts (``prange``); each layout is computed
+independently, so results do not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from cases.errors import NumericalError
+from cases.fem import COMPONENTS, PlateModel
+
+#: compliance columns are computed this many at a time (bounds the dense back-solve block)
+CHUNK = 256
+
+
+class FieldOracle:
+    """Green's-function data of one field (bending or membrane) of one model."""
+
+    def __init__(self, model: PlateModel, field: str, candidates: np.ndarray):
+        fs = model.fields[field]
+        self.name = field
+        self.lu = fs.lu
+        B, self.per = model.fixture_rows(field, candidates)
+        self.B = B[:, fs.free].tocsr()
+        self.P = model.measure_matrix(field)
+        self.n_rows = self.B.shape[0]
+        self.n_meas = self.P.shape[0]
+        # Lazily filled: only rows of used candidates are written, so untouched pages cost nothing.
+        self.C = np.zeros((self.n_rows, self.n_rows))
+        self.H = np.zeros((self.n_rows, self.n_meas))
+        self.done = np.zeros(self.n_rows, dtype=bool)
+        F = model.load_matrix(field)
+        U0 = self.lu.solve(F)
+        if not np.all(np.isfinite(U0)):
+            raise NumericalError(f"{field}: non-finite unconstrained response")
+        self.d0 = np.ascontiguousarray((self.B @ U0).T)  # (n_tasks, n_rows)
+        self.m0 = np.ascontiguousarray((self.P @ U0).T)  # (n_tasks, n_meas)
+
+    def rows(self, cand: np.ndarray) -> np.ndarray:
+        """Row indices of candidates: (..., k) -> (..., k * per)."""
+        cand = np.asarray(cand, dtype=np.int64)
+        return (cand[..., None] * self.per + np.arange(self.per)).reshape(*cand.shape[:-1], -1)
+
+    def ensure(self, cand: np.ndarray, progress=None) -> int:
+        """Compute the compliance columns of the candidates not yet done; returns how many."""
+        rows = np.unique(self.rows(np.unique(cand)[None, :]))
+        todo = rows[~self.done[rows]]
+        for start in range(0, len(todo), CHUNK):
+            r = todo[start:start + CHUNK]
+            G = self.lu.solve(self.B[r].T.toarray())
+            if not np.all(np.isfinite(G)):
+                raise NumericalError(f"{self.name}: non-finite compliance columns")
+            self.C[r] = (self.B @ G).T
+            self.H[r] = (self.P @ G).T
+            self.done[r] = True
+            if progress is not None:
+                progress(len(r))
+        return len(todo)
+
+
+class Oracle:
+    """Batched, exact evaluation of fixture layouts for every task of a model.
+
+    Not counted: planners reach it through :class:`cases.problem.Evaluator`, which charges samples.
+    """
+
+    def __init__(self, model: PlateModel, candidates: np.ndarray):
+        self.model = model
+        self.n_meas = len(model.measure_points)
+        self.fields = {f: FieldOracle(model, f, candidates) for f in model.active}
+        self.n_tasks = len(model.spec.tasks)
+
+    def ensure(self, cand: np.ndarray, progress=None) -> None:
+        for fo in self.fields.values():
+            fo.ensure(cand, progress)
+
+    def n_columns(self, cand: np.ndarray) -> int:
+        """How many compliance columns the candidates have (rows of all active fields)."""
+        return sum(fo.per for fo in self.fields.values()) * len(np.unique(cand))
+
+    def evaluate(self, task: int, layouts: np.ndarray) -> np.ndarray:
+        """Maxima over the measurement points for each layout: (L, 4) = |ux|, |uy|, |w|, |u|."""
+        layouts = np.ascontiguousarray(np.atleast_2d(layouts), dtype=np.int64)
+        self.ensure(layouts)
+        empty = (np.zeros((0, 0)), np.zeros((0, self.n_meas)), np.zeros(0),
+                 np.zeros(self.n_meas), np.zeros((len(layouts), 0), dtype=np.int64))
+        args = []
+        for field in ("bending", "membrane"):
+            fo = self.fields.get(field)
+            if fo is None:
+                c, h, d, m, r = empty
+                if field == "membrane":
+                    h, m = np.zeros((0, 2 * self.n_meas)), np.zeros(2 * self.n_meas)
+            else:
+                c, h, d, m, r = fo.C, fo.H, fo.d0[task], fo.m0[task], fo.rows(layouts)
+            args += [c, h, d, m, np.ascontiguousarray(r)]
+        out = np.empty((len(layouts), 5))
+        _evaluate(*args, self.n_meas, out)
+        bad = out[:, 4] > 0
+        if bad.any():
+            raise NumericalError(f"layout {layouts[np.argmax(bad)].tolist()} of task {task} gives a "
+                                 "singular constraint system (coincident or overlapping pads?)")
+        return out[:, :4]
+
+    def compliance(self, field: str, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Coupling rows C and measurement influence H of candidates (what a QP planner reads)."""
+        fo = self.fields[field]
+        fo.ensure(cand)
+        r = fo.rows(np.atleast_1d(cand)[None, :])[0]
+        return fo.C[r], fo.H[r]
+
+
+@numba.njit(cache=True)
+def _chol_solve(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Solve the small SPD system A x = b by Cholesky; ok=False when A is (near) singular."""
+    k = A.shape[0]
+    L = np.zeros((k, k))
+    scale = 0.0
+    for i in range(k):
+        scale = max(scale, A[i, i])
+    for j in range(k):
+        s = A[j, j]
+        for p in range(j):
+            s -= L[j, p] * L[j, p]
+        if s <= 1e-13 * scale:
+            return np.zeros(k), False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, k):
+            s = A[i, j]
+            for p in range(j):
+                s -= L[i, p] * L[j, p]
+            L[i, j] = s / L[j, j]
+    y = np.empty(k)
+    for i in range(k):
+        s = b[i]
+        for p in range(i):
+            s -= L[i, p] * y[p]
+        y[i] = s / L[i, i]
+    x = np.empty(k)
+    for i in range(k - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, k):
+            s -= L[p, i] * x[p]
+        x[i] = s / L[i, i]
+    return x, True
+
+
+@numba.njit(cache=True)
+def _response(C, H, d0, m0, rows):
+    """Field values at the measurement points for one layout's constraint rows."""
+    k = rows.shape[0]
+    u = m0.copy()
+    if k == 0:
+        return u, True
+    A = np.empty((k, k))
+    b = np.empty(k)
+    for i in range(k):
+        b[i] = d0[rows[i]]
+        for j in range(k):
+            A[i, j] = 0.5 * (C[rows[i], rows[j]] + C[rows[j], rows[i]])
+    lam, ok = _chol_solve(A, b)
+    for i in range(k):
+        hi = H[rows[i]]
+        li = lam[i]
+        for p in range(u.shape[0]):
+            u[p] -= li * hi[p]
+    return u, ok
+
+
+@numba.njit(parallel=True, cache=True)
+def _evaluate(Cb, Hb, db, mb, rb, Cm, Hm, dm, mm, rm, n_meas, out):
+    for ell in numba.prange(rb.shape[0]):
+        w, ok_b = _response(Cb, Hb, db, mb, rb[ell])
+        uv, ok_m = _response(Cm, Hm, dm, mm, rm[ell])
+        ax = ay = aw = au = 0.0
+        for p in range(n_meas):
+            x, y, z = uv[p], uv[n_meas + p], w[p]
+            ax = max(ax, abs(x))
+            ay = max(ay, abs(y))
+            aw = max(aw, abs(z))
+            au = max(au, x * x + y * y + z * z)
+        out[ell, 0] = ax
+        out[ell, 1] = ay
+        out[ell, 2] = aw
+        out[ell, 3] = np.sqrt(au)
+        out[ell, 4] = 0.0 if (ok_b and ok_m) else 1.0
+
+
+__all__ = ["Oracle", "FieldOracle", "COMPONENTS"]

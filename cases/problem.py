@@ -1,0 +1,187 @@
+"""The fixture-planning problem and its counted evaluator.
+
+A :class:`Problem` is a part + material + base supports + fixture candidates + agents (disjoint
+action sets) + tasks + reward settings. A *layout* is one candidate index per agent, each from the
+agent's own set (global candidate indices, in agent order). Planners see the problem's structure
+and evaluate layouts only through an :class:`Evaluator`, which counts every layout as one sample,
+charges one sample per compliance column read, and refuses to pass a hard budget.
+
+>>> problem = load_problem("wing_panel_small")
+>>> ev = problem.evaluator(budget=100)
+>>> d = ev.evaluate(0, [[a[0] for a in problem.action_sets]])
+>>> ev.samples
+1
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from cases import rewards
+from cases.errors import BudgetExhausted, CaseError
+from cases.fem import PlateModel
+from cases.oracle import Oracle
+from cases.spec import CaseSpec, load_case_spec
+
+#: models and oracles are cached per (case file contents, material, mesh scale) in this process
+_CACHE: dict[tuple, tuple[PlateModel, Oracle]] = {}
+
+
+@dataclass(frozen=True)
+class Deformation:
+    """Maximum deformation over the measurement points of a batch of layouts (metres)."""
+
+    max_ux: np.ndarray
+    max_uy: np.ndarray
+    max_w: np.ndarray
+    max_u: np.ndarray  # magnitude sqrt(ux^2 + uy^2 + w^2): the objective planners minimise
+    reward_gaussian: np.ndarray
+    reward_bell: np.ndarray
+
+    def row(self, i: int) -> dict[str, float]:
+        return {k: float(getattr(self, k)[i]) for k in self.__dataclass_fields__}
+
+
+class Problem:
+    """One fixture-planning problem (see module docstring)."""
+
+    def __init__(self, spec: CaseSpec, mesh_scale: float = 1.0):
+        self.spec = spec if mesh_scale == 1.0 else spec.with_mesh_scale(mesh_scale)
+        self.mesh_scale = mesh_scale
+        self.name = spec.name
+        self.candidates = spec.candidates
+        self.tasks = spec.tasks
+        self.n_agents = spec.n_agents
+        self.action_sets = _action_sets(spec)
+        self.features = np.array([t.features for t in spec.tasks])
+
+    @property
+    def n_tasks(self) -> int:
+        return len(self.tasks)
+
+    @property
+    def joint_size(self) -> int:
+        """Number of joint layouts (product of the agents' set sizes)."""
+        return math.prod(len(a) for a in self.action_sets)
+
+    def _key(self) -> tuple:
+        """What the model and oracle depend on (not the agents: the oracle spans all candidates)."""
+        return (self.spec.source, self.spec.material, self.mesh_scale,
+                tuple(t.name for t in self.spec.tasks), self.candidates.tobytes())
+
+    @cached_property
+    def model(self) -> PlateModel:
+        return self._model_oracle()[0]
+
+    @cached_property
+    def oracle(self) -> Oracle:
+        return self._model_oracle()[1]
+
+    def _model_oracle(self) -> tuple[PlateModel, Oracle]:
+        key = self._key()
+        if key not in _CACHE:
+            model = PlateModel(self.spec)
+            _CACHE[key] = (model, Oracle(model, self.candidates))
+        return _CACHE[key]
+
+    def check_layouts(self, layouts) -> np.ndarray:
+        """Layouts as an (L, n_agents) int array, each entry from its agent's own set."""
+        arr = np.atleast_2d(np.asarray(layouts))
+        if arr.ndim != 2 or arr.shape[1] != self.n_agents or not np.issubdtype(arr.dtype, np.integer):
+            raise CaseError(self.spec.source, "layout",
+                            f"must be {self.n_agents} integer candidate indices per layout")
+        for a, allowed in enumerate(self.action_sets):
+            ok = np.isin(arr[:, a], allowed)
+            if not ok.all():
+                raise CaseError(self.spec.source, "layout", f"candidate {int(arr[~ok, a][0])} is not "
+                                f"in agent {a}'s set ({allowed[0]}..{allowed[-1]})")
+        return arr.astype(np.int64)
+
+    def check_task(self, task: int) -> int:
+        if not 0 <= int(task) < self.n_tasks:
+            raise CaseError(self.spec.source, "task", f"must be in 0..{self.n_tasks - 1}, got {task}")
+        return int(task)
+
+    def deformation(self, maxima: np.ndarray) -> Deformation:
+        sx, sz = self.spec.reward_sigma
+        ux, uy, w, u = maxima.T
+        return Deformation(ux, uy, w, u, rewards.gaussian(ux, w, sx, sz), rewards.bell(ux, w))
+
+    def evaluator(self, budget: int | None = None) -> "Evaluator":
+        return Evaluator(self, budget)
+
+    def solve_direct(self, task: int, layout) -> dict:
+        """Reference path, uncounted: full fields by a direct constrained solve (for checks)."""
+        layout = self.check_layouts(layout)[0]
+        return self.model.solve_direct(self.check_task(task), self.candidates[layout])
+
+    def direct_deformation(self, task: int, layout) -> Deformation:
+        v = self.model.measure(self.solve_direct(task, layout))
+        mag = np.sqrt(v["ux"] ** 2 + v["uy"] ** 2 + v["w"] ** 2)
+        m = np.array([[np.abs(v["ux"]).max(), np.abs(v["uy"]).max(), np.abs(v["w"]).max(), mag.max()]])
+        return self.deformation(m)
+
+
+class Evaluator:
+    """The counted door to the oracle: every layout is a sample, every compliance column too."""
+
+    def __init__(self, problem: Problem, budget: int | None = None):
+        if budget is not None and budget <= 0:
+            raise CaseError(problem.spec.source, "--budget", f"must be positive, got {budget}")
+        self.problem = problem
+        self.budget = budget
+        self.samples = 0
+
+    @property
+    def remaining(self) -> float:
+        return math.inf if self.budget is None else self.budget - self.samples
+
+    def charge(self, n: int) -> None:
+        """Spend ``n`` samples, or raise :class:`BudgetExhausted` and spend none."""
+        if n > self.remaining:
+            raise BudgetExhausted(f"{self.problem.name}: budget of {self.budget} samples exhausted "
+                                  f"({self.samples} spent, {n} more asked)")
+        self.samples += n
+
+    def evaluate(self, task: int, layouts) -> Deformation:
+        """Max deformation of each layout for ``task``; costs one sample per layout."""
+        p = self.problem
+        task, layouts = p.check_task(task), p.check_layouts(layouts)
+        self.charge(len(layouts))
+        return p.deformation(p.oracle.evaluate(task, layouts))
+
+    def compliance(self, field: str, candidates) -> tuple[np.ndarray, np.ndarray]:
+        """Compliance data of candidates (coupling rows C, measurement influence H).
+
+        Charged one sample per column: a candidate holding m components of ``field`` costs m.
+        """
+        cand = np.unique(np.atleast_1d(candidates))
+        fo = self.problem.oracle.fields.get(field)
+        if fo is None:
+            raise CaseError(self.problem.spec.source, "field", f"'{field}' is not active in this case")
+        self.charge(fo.per * len(cand))
+        return self.problem.oracle.compliance(field, cand)
+
+
+def _action_sets(spec: CaseSpec) -> list[np.ndarray]:
+    n = len(spec.candidates)
+    if spec.agent_regions:
+        import shapely
+
+        sets = []
+        for _, ring in spec.agent_regions:
+            inside = shapely.contains_xy(shapely.Polygon(ring), spec.candidates[:, 0], spec.candidates[:, 1])
+            sets.append(np.flatnonzero(inside))
+        return sets
+    return [a.astype(np.int64) for a in np.array_split(np.arange(n), spec.n_agents)]
+
+
+def load_problem(case: str | Path, material: str | None = None, agents: int | None = None,
+                 mesh_scale: float = 1.0) -> Problem:
+    """A problem from a catalog name or a TOML path, optionally with another material/agent count."""
+    return Problem(load_case_spec(case, material, agents), mesh_scale)

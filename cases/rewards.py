@@ -1,0 +1,16 @@
+"""Reward functions of the MARL literature (REFERENCE section 5), on max deformations in metres."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def gaussian(dx: np.ndarray, dz: np.ndarray, sigma_x: float, sigma_z: float) -> np.ndarray:
+    """Seed paper: exp(-dx^2 / (2 sx^2) - dz^2 / (2 sz^2)), in [0, 1]."""
+    return np.exp(-(dx**2) / (2 * sigma_x**2) - dz**2 / (2 * sigma_z**2))
+
+
+def bell(dx: np.ndarray, dz: np.ndarray) -> np.ndarray:
+    """Reference code: (1 / (1 + x^2) + 1 / (1 + z^2)) / 2 with x, z in micrometres."""
+    x, z = dx * 1e6, dz * 1e6
+    return 0.5 * (1.0 / (1.0 + x**2) + 1.0 / (1.0 + z**2))

@@ -1,0 +1,538 @@
+"""Case files: TOML -> validated, SI-unit dataclasses.
+
+A case describes one part and its fixture problem: geometry, mesh density, material, base supports,
+fixture candidates, agents, tasks (load cases) and reward settings. The format is documented in
+README ("Case files"); :func:`load_case_spec` is the only reader. Every problem found in a file is a
+one-line :class:`~cases.errors.CaseError` naming file, key and problem.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+import numpy as np
+import shapely
+
+from cases.errors import CaseError
+from cases.geometry import build_polygon
+from cases.materials import MATERIALS, Material
+from cases.units import Reader
+
+CATALOG = Path(__file__).parent / "catalog"
+DOF_NAMES = ("ux", "uy", "w", "rot")
+SUPPORT_KINDS = {"clamped": ("ux", "uy", "w", "rot"), "pinned": ("ux", "uy", "w"),
+                 "simple": ("w",), "membrane": ("ux", "uy")}
+FIELD_OF = {"ux": "membrane", "uy": "membrane", "w": "bending", "rot": "bending"}
+
+
+# ---------------------------------------------------------------------------------------------
+# dataclasses (SI units throughout)
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Shape:
+    """One shape of the outline: ``op`` is union or difference; ``polygon`` is its vertices."""
+
+    op: str
+    polygon: np.ndarray  # (n, 2) m
+    copies: int = 1
+    about: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Refine:
+    """Mesh refinement: element size ``size`` within ``width`` of the points, graded outside."""
+
+    points: np.ndarray  # (n, 2) m
+    size: float
+    width: float
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    size: float  # target element edge length away from refinement (m)
+    refine: tuple[Refine, ...] = ()
+    grading: float = 0.3  # growth of element size per unit distance beyond a refinement band
+    min_angle_deg: float = 30.0
+
+
+@dataclass(frozen=True)
+class Support:
+    """A base support: which DOFs it holds and where (boundary facets or nodes near a point)."""
+
+    name: str
+    holds: tuple[str, ...]
+    segment: np.ndarray | None = None  # (2, 2): boundary facets on this segment
+    hole: int | None = None  # boundary of hole i
+    outer: bool = False  # whole outer boundary
+    point: np.ndarray | None = None  # nodes within radius of this point
+    radius: float = 0.0
+
+
+@dataclass(frozen=True)
+class Load:
+    """One load. ``kind`` is pressure, centrifugal, patch or edge_traction.
+
+    - pressure: ``magnitude`` Pa normal to the plate (+z), over the part or ``region``.
+    - centrifugal: body force rho t omega^2 r about ``at`` (the axis, normal to the plate),
+      ``magnitude`` = omega in rad/s.
+    - patch: total ``force`` (Fx, Fy, Fz) spread uniformly over a disc of ``radius`` at ``at``
+      (``patch_shape='disc'``; radius 0 is a point load, allowed out of plane only) or over the
+      boundary within ``radius`` of ``at`` (``'edge'``).
+    - edge_traction: total ``force`` spread uniformly over the boundary lying on ``segment``.
+    """
+
+    kind: str
+    force: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    magnitude: float = 0.0
+    at: np.ndarray | None = None
+    radius: float = 0.0
+    patch_shape: str = "disc"
+    segment: np.ndarray | None = None
+    region: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Task:
+    """A load case the fixtures must hold the part for; ``features`` feed learners."""
+
+    name: str
+    loads: tuple[Load, ...]
+    features: np.ndarray
+
+
+@dataclass(frozen=True)
+class Validation:
+    """An analytic reference: ``coefficient * scale`` against the computed ``quantity`` at ``at``."""
+
+    quantity: str
+    at: np.ndarray
+    coefficient: float
+    scale: str
+    lengths: dict[str, float]
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    name: str
+    source: str
+    description: str
+    part: str
+    material: Material
+    thickness: float
+    shapes: tuple[Shape, ...]
+    polygon: shapely.Polygon
+    mesh: MeshSpec
+    supports: tuple[Support, ...]
+    fixture_radius: float
+    fixture_holds: tuple[str, ...]
+    candidates: np.ndarray  # (n, 2) m
+    n_agents: int
+    agent_regions: tuple[tuple[str, np.ndarray], ...]
+    tasks: tuple[Task, ...]
+    reward_sigma: tuple[float, float]  # (sigma_x, sigma_z) m, Gaussian reward
+    measure_spacing: float
+    validation: Validation | None = None
+
+    def with_material(self, material: Material) -> "CaseSpec":
+        return replace(self, material=material)
+
+    def with_agents(self, n_agents: int) -> "CaseSpec":
+        if self.agent_regions:
+            raise CaseError(self.source, "agents.regions", "the case names its agents' regions; "
+                            "their number cannot be changed")
+        if n_agents < 1:
+            raise CaseError(self.source, "agents.count", f"must be at least 1, got {n_agents}")
+        if n_agents > len(self.candidates):
+            raise CaseError(self.source, "agents.count", f"{n_agents} agents but only "
+                            f"{len(self.candidates)} fixture candidates")
+        return replace(self, n_agents=n_agents)
+
+    def with_mesh_scale(self, factor: float) -> "CaseSpec":
+        """Every element size multiplied by ``factor`` (0.5 = twice as fine)."""
+        mesh = replace(self.mesh, size=self.mesh.size * factor,
+                       refine=tuple(replace(r, size=r.size * factor) for r in self.mesh.refine))
+        return replace(self, mesh=mesh)
+
+    def with_tasks(self, indices) -> "CaseSpec":
+        return replace(self, tasks=tuple(self.tasks[i] for i in indices))
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+# ---------------------------------------------------------------------------------------------
+def case_names() -> list[str]:
+    """Names of the catalog cases."""
+    return sorted(p.stem for p in CATALOG.glob("*.toml"))
+
+
+def resolve_case(name_or_path: str | Path) -> Path:
+    """A catalog name or a path to a user's TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise CaseError(str(p), "", "no such case file")
+        return p
+    cat = CATALOG / f"{name_or_path}.toml"
+    if not cat.is_file():
+        raise CaseError(str(name_or_path), "", f"unknown case (known: {', '.join(case_names())})")
+    return cat
+
+
+def _display(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path) if path.parent != CATALOG else f"catalog/{path.name}"
+
+
+def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> tuple[dict, str]:
+    """Parse a case file and merge it over the case it ``extends`` (tables merge, arrays replace)."""
+    source = _display(path)
+    if path.resolve() in chain:
+        raise CaseError(source, "case.extends", "cycle of extends")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(source, "", f"not valid TOML ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaseError(source, "", f"cannot read ({exc})") from None
+    base = data.get("case", {}).get("extends") if isinstance(data.get("case"), dict) else None
+    if base is None:
+        return data, source
+    if not isinstance(base, str):
+        raise CaseError(source, "case.extends", "must be a case name or a path")
+    rel = path.parent / base
+    try:
+        base_path = rel if rel.suffix == ".toml" and rel.is_file() else resolve_case(base)
+    except CaseError as exc:
+        raise CaseError(source, "case.extends", exc.problem) from None
+    base_data, _ = read_toml(base_path, chain + (path.resolve(),))
+    base_data.get("case", {}).pop("name", None)
+    data["case"].pop("extends")
+    return _merge(base_data, data), source
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_case_spec(name_or_path: str | Path, material: str | None = None,
+                   n_agents: int | None = None) -> CaseSpec:
+    """Read and validate a case; ``material`` and ``n_agents`` override the file's choice."""
+    path = resolve_case(name_or_path)
+    data, source = read_toml(path)
+    spec = parse_case(data, source, default_name=path.stem)
+    if material is not None:
+        if material not in MATERIALS:
+            raise CaseError(source, "--material",
+                            f"unknown material '{material}' (known: {', '.join(MATERIALS)})")
+        spec = spec.with_material(MATERIALS[material])
+    if n_agents is not None:
+        spec = spec.with_agents(n_agents)
+    return spec
+
+
+def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
+    top = Reader(data, source)
+    case = top.table("case") or Reader({}, source, "case")
+    name = case.text("name", default_name)
+    description = case.text("description", "")
+    part = case.text("part", name)
+    case.finish()
+
+    material = _material(top.table("material", required=True))
+    thickness, shapes, polygon = _geometry(top.table("geometry", required=True))
+    tasks = _tasks(top, polygon)
+    mesh = _mesh(top.table("mesh", required=True), tasks)
+    supports = tuple(_support(r, polygon) for r in top.tables("supports"))
+    radius, holds, candidates = _fixtures(top.table("fixtures", required=True), polygon)
+    n_agents, regions = _agents(top.table("agents", required=True), candidates)
+
+    reward = top.table("reward") or Reader({}, source, "reward")
+    sigma = (reward.number("sigma_x", "length", 10e-6, positive=True),
+             reward.number("sigma_z", "length", 10e-6, positive=True))
+    reward.finish()
+    measure = top.table("measure") or Reader({}, source, "measure")
+    spacing = measure.number("spacing", "length", mesh.size * 1.5, positive=True)
+    measure.finish()
+    val = top.table("validation")
+    validation = _validation(val) if val is not None else None
+    top.finish()
+
+    if not tasks:
+        raise top.error("tasks", "the case has no tasks")
+    if not supports:
+        raise top.error("supports", "no base support: the part is free to move rigidly")
+    return CaseSpec(name=name, source=source, description=description, part=part,
+                    material=material, thickness=thickness, shapes=shapes, polygon=polygon,
+                    mesh=mesh, supports=supports, fixture_radius=radius, fixture_holds=holds,
+                    candidates=candidates, n_agents=n_agents, agent_regions=regions, tasks=tasks,
+                    reward_sigma=sigma, measure_spacing=spacing, validation=validation)
+
+
+def _material(r: Reader) -> Material:
+    name = r.text("name")
+    if name not in MATERIALS:
+        raise r.error("name", f"unknown material '{name}' (known: {', '.join(MATERIALS)})")
+    base = MATERIALS[name]
+    mat = Material(name, r.number("E", "pressure", base.E, positive=True),
+                   r.number("nu", None, base.nu), r.number("density", "density", base.density,
+                                                           positive=True))
+    if not -1.0 < mat.nu < 0.5:
+        raise r.error("nu", f"Poisson's ratio must lie in (-1, 0.5), got {mat.nu:g}")
+    r.finish()
+    return mat
+
+
+def _geometry(r: Reader) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
+    thickness = r.number("thickness", "length", positive=True)
+    shapes: list[Shape] = []
+    if r.has("outline"):
+        shapes.append(Shape("union", r.array("outline", "length", shape=(-1, 2))))
+    for s in r.tables("shapes"):
+        op = s.text("op", "union", ("union", "difference"))
+        kinds = [k for k in ("polygon", "circle", "rectangle") if s.has(k)]
+        if len(kinds) != 1:
+            raise s.error("polygon_mm", "give exactly one of polygon_*, circle_*, rectangle_*")
+        if kinds[0] == "polygon":
+            poly = s.array("polygon", "length", shape=(-1, 2))
+        elif kinds[0] == "circle":
+            c = s.array("circle", "length", shape=(3,))
+            if c[2] <= 0:
+                raise s.error("circle_mm", "radius (third value) must be positive")
+            poly = np.asarray(shapely.Point(c[:2]).buffer(c[2], quad_segs=16).exterior.coords)[:-1]
+        else:
+            x0, y0, x1, y1 = s.array("rectangle", "length", shape=(4,))
+            if x1 <= x0 or y1 <= y0:
+                raise s.error("rectangle_mm", "must be [x0, y0, x1, y1] with x1 > x0 and y1 > y0")
+            poly = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        copies = s.integer("copies", 1, minimum=1)
+        about = tuple(s.array("about", "length", np.zeros(2), shape=(2,)))
+        s.finish()
+        shapes.append(Shape(op, poly, copies, about))
+    if not shapes:
+        raise r.error("outline_mm", "missing (or give [[geometry.shapes]])")
+    if shapes[0].op != "union":
+        raise r.error("shapes", "the first shape must be a union")
+    polygon = build_polygon(shapes, r)
+    r.finish()
+    return thickness, tuple(shapes), polygon
+
+
+def _mesh(r: Reader, tasks: tuple[Task, ...]) -> MeshSpec:
+    size = r.number("size", "length", positive=True)
+    refine = []
+    for s in r.tables("refine"):
+        near = s.text("near", "points", ("points", "tasks"))
+        if near == "tasks":
+            pts = [ld.at for t in tasks for ld in t.loads if ld.at is not None]
+            if not pts:
+                raise s.error("near", "no task has a located load to refine near")
+            points = np.array(pts)
+        else:
+            points = _densify(s.array("polyline", "length", shape=(-1, 2)), size / 4)
+        refine.append(Refine(points, s.number("size", "length", positive=True),
+                             s.number("width", "length", 0.0, nonneg=True)))
+        s.finish()
+    mesh = MeshSpec(size, tuple(refine), r.number("grading", None, 0.3, positive=True),
+                    r.number("min_angle", "angle", np.radians(30.0), positive=True))
+    mesh = replace(mesh, min_angle_deg=float(np.degrees(mesh.min_angle_deg)))
+    if not 10.0 <= mesh.min_angle_deg <= 34.0:
+        raise r.error("min_angle_deg", "must lie between 10 and 34 degrees (Triangle's range)")
+    r.finish()
+    return mesh
+
+
+def _densify(line: np.ndarray, step: float) -> np.ndarray:
+    pts = [line[0]]
+    for a, b in zip(line[:-1], line[1:]):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        pts.extend(a + (b - a) * t for t in np.linspace(0, 1, n + 1)[1:])
+    return np.array(pts)
+
+
+def _holds(r: Reader, default: tuple[str, ...] | None, allowed: tuple[str, ...]) -> tuple[str, ...]:
+    if r.has("kind"):
+        kind = r.text("kind", choices=tuple(SUPPORT_KINDS))
+        return SUPPORT_KINDS[kind]
+    holds = r.raw("holds", default, (list,))
+    if holds is ...:
+        raise r.error("holds", "missing (or give kind)")
+    if not holds or any(h not in allowed for h in holds) or len(set(holds)) != len(holds):
+        raise r.error("holds", f"must be a non-empty list of distinct names from {', '.join(allowed)}")
+    return tuple(holds)
+
+
+def _support(r: Reader, polygon: shapely.Polygon) -> Support:
+    holds = _holds(r, ..., DOF_NAMES)
+    name = r.text("name", "support")
+    where = [k for k in ("segment", "hole", "boundary", "point") if r.has(k)]
+    if len(where) != 1:
+        raise r.error("segment_mm", "give exactly one of segment_*, hole, boundary, point_*")
+    sup: Support
+    if where[0] == "segment":
+        seg = r.array("segment", "length", shape=(2, 2))
+        if polygon.boundary.distance(shapely.LineString(seg)) > 1e-6:
+            raise r.error("segment_mm", "does not touch the part's boundary")
+        sup = Support(name, holds, segment=seg)
+    elif where[0] == "hole":
+        hole = r.integer("hole", minimum=0)
+        if hole >= len(polygon.interiors):
+            raise r.error("hole", f"the part has {len(polygon.interiors)} holes")
+        sup = Support(name, holds, hole=hole)
+    elif where[0] == "boundary":
+        r.text("boundary", choices=("outer",))
+        sup = Support(name, holds, outer=True)
+    else:
+        pt = r.array("point", "length", shape=(2,))
+        if not polygon.buffer(1e-9).covers(shapely.Point(pt)):
+            raise r.error("point_mm", "lies outside the part")
+        sup = Support(name, holds, point=pt, radius=r.number("radius", "length", 0.0, nonneg=True))
+    r.finish()
+    return sup
+
+
+def _fixtures(r: Reader, polygon: shapely.Polygon):
+    radius = r.number("radius", "length", positive=True)
+    holds = _holds(r, ["ux", "uy", "w"], ("ux", "uy", "w"))
+    grid = r.table("grid")
+    if grid is not None and r.has("points"):
+        raise r.error("points_mm", "give either points_* or [fixtures.grid], not both")
+    if grid is not None:
+        axes = []
+        for ax in ("x", "y"):
+            start = grid.number(f"{ax}_start", "length")
+            step = grid.number(f"{ax}_step", "length", positive=True)
+            axes.append(start + step * np.arange(grid.integer(f"{ax}_count", minimum=1)))
+        order = grid.text("order", "x", ("x", "y"))
+        xx, yy = np.meshgrid(axes[0], axes[1], indexing="ij" if order == "x" else "xy")
+        points = np.column_stack([xx.ravel(), yy.ravel()])
+        if grid.has("keep_inside"):
+            keep = shapely.Polygon(grid.array("keep_inside", "length", shape=(-1, 2)))
+            if not keep.is_valid:
+                raise grid.error("keep_inside_mm", "is not a valid (simple) polygon")
+            points = points[shapely.contains_xy(keep, points[:, 0], points[:, 1])]
+        grid.finish()
+    else:
+        points = r.array("points", "length", shape=(-1, 2))
+    if len(points) == 0:
+        raise r.error("grid" if grid is not None else "points_mm", "no fixture candidates")
+    inside = shapely.contains_xy(polygon, points[:, 0], points[:, 1])
+    if not inside.all():
+        i = int(np.flatnonzero(~inside)[0])
+        x, y = points[i] * 1e3
+        raise r.error("grid" if grid is not None else "points_mm",
+                      f"candidate {i} at ({x:.1f}, {y:.1f}) mm lies outside the part")
+    r.finish()
+    return radius, holds, points
+
+
+def _agents(r: Reader, candidates: np.ndarray):
+    regions = []
+    for s in r.tables("regions"):
+        poly = shapely.Polygon(s.array("polygon", "length", shape=(-1, 2)))
+        if not poly.is_valid:
+            raise s.error("polygon_mm", "is not a valid (simple) polygon")
+        regions.append((s.text("name", f"agent{len(regions)}"), np.asarray(poly.exterior.coords)))
+        s.finish()
+    count = r.integer("count", len(regions) if regions else ..., minimum=1)
+    if regions:
+        if count != len(regions):
+            raise r.error("count", f"is {count} but {len(regions)} regions are named")
+        owner = np.full(len(candidates), -1)
+        for i, (name, ring) in enumerate(regions):
+            inside = shapely.contains_xy(shapely.Polygon(ring), candidates[:, 0], candidates[:, 1])
+            both = inside & (owner >= 0)
+            if both.any():
+                raise r.error(f"regions[{i}]", f"region '{name}' overlaps region "
+                              f"'{regions[owner[both][0]][0]}' (shared candidates)")
+            if not inside.any():
+                raise r.error(f"regions[{i}]", f"region '{name}' holds no fixture candidate")
+            owner[inside] = i
+    elif count > len(candidates):
+        raise r.error("count", f"{count} agents but only {len(candidates)} fixture candidates")
+    r.finish()
+    return count, tuple(regions)
+
+
+def _load(r: Reader, polygon: shapely.Polygon) -> Load:
+    kind = r.text("kind", choices=("pressure", "centrifugal", "patch", "edge_traction"))
+    if kind == "pressure":
+        region = r.array("region", "length", None, shape=(-1, 2))
+        ld = Load(kind, magnitude=r.number("pressure", "pressure"), region=region)
+    elif kind == "centrifugal":
+        ld = Load(kind, magnitude=r.number("speed", "angular_speed", nonneg=True),
+                  at=r.array("center", "length", shape=(2,)))
+    elif kind == "patch":
+        ld = _patch(r, r.array("at", "length", shape=(2,)), polygon)
+    else:
+        seg = r.array("segment", "length", shape=(2, 2))
+        if polygon.boundary.distance(shapely.LineString(seg)) > 1e-6:
+            raise r.error("segment_mm", "does not touch the part's boundary")
+        ld = Load(kind, force=r.array("force", "force", shape=(3,)), segment=seg)
+    r.finish()
+    return ld
+
+
+def _patch(r: Reader, at: np.ndarray, polygon: shapely.Polygon) -> Load:
+    force = r.array("force", "force", shape=(3,))
+    radius = r.number("radius", "length", nonneg=True)
+    shape = r.text("patch", "disc", ("disc", "edge"))
+    if shape == "disc" and radius == 0 and np.any(force[:2] != 0):
+        raise r.error("radius_mm", "an in-plane point force is singular in plane stress; "
+                                   "give the patch a physical radius")
+    if shape == "edge" and radius == 0:
+        raise r.error("radius_mm", "an edge patch needs a positive radius")
+    if not polygon.buffer(1e-9).covers(shapely.Point(at)):
+        x, y = at * 1e3
+        raise r.error("at_mm" if r.has("at") else "line_mm",
+                      f"load point ({x:.1f}, {y:.1f}) mm lies outside the part")
+    return Load("patch", force=force, at=at, radius=radius, patch_shape=shape)
+
+
+def _tasks(top: Reader, polygon: shapely.Polygon) -> tuple[Task, ...]:
+    background = tuple(_load(r, polygon) for r in top.tables("loads"))
+    lo, hi = np.array(polygon.bounds[:2]), np.array(polygon.bounds[2:])
+    tasks: list[Task] = []
+    for g in top.tables("tasks"):
+        kind = g.text("kind", choices=("drilling", "loads"))
+        name = g.text("name", kind)
+        if kind == "drilling":
+            if g.has("points"):
+                points = g.array("points", "length", shape=(-1, 2))
+            else:
+                a, b = g.array("line", "length", shape=(2, 2))
+                count = g.integer("count", minimum=1)
+                points = a + np.outer(np.linspace(0.0, 1.0, count), b - a)
+            template = {k: v for k, v in g.data.items() if k.split("_")[0] in ("force", "radius", "patch")}
+            for i, p in enumerate(points):
+                sub = Reader(template, g.source, g.prefix)
+                ld = _patch(sub, p, polygon)
+                tasks.append(Task(f"{name} {i}", (ld,) + background, (p - lo) / (hi - lo)))
+            for k in template:
+                g.used.add(k)
+        else:
+            loads = tuple(_load(r, polygon) for r in g.tables("loads"))
+            if not loads and not background:
+                raise g.error("loads", "a task needs at least one load")
+            feats = g.array("features", None, np.array([float(len(tasks))]), shape=(-1,))
+            tasks.append(Task(name, loads + background, feats))
+        g.finish()
+    dims = {len(t.features) for t in tasks}
+    if len(dims) > 1:
+        raise top.error("tasks", f"tasks have feature vectors of different lengths {sorted(dims)}")
+    return tuple(tasks)
+
+
+def _validation(r: Reader) -> Validation:
+    quantity = r.text("quantity", choices=("w", "ux", "uy"))
+    at = r.array("at", "length", shape=(2,))
+    coefficient = r.number("coefficient", None, positive=True)
+    scale = r.text("scale", choices=("q a^4 / D", "P a^2 / D", "F L / (E b t)"))
+    lengths = {k: r.number(k, "length", positive=True) for k in ("a", "b", "L") if r.has(k)}
+    r.finish()
+    return Validation(quantity, at, coefficient, scale, lengths)
