@@ -12,6 +12,7 @@ import numpy as np
 import shapely
 import shapely.affinity
 import shapely.ops
+import shapely.validation
 import triangle
 from scipy.spatial import cKDTree
 from skfem import MeshTri
@@ -24,7 +25,7 @@ def build_polygon(shapes, reader) -> shapely.Polygon:
     part = None
     for i, s in enumerate(shapes):
         poly = shapely.Polygon(s.polygon)
-        key = "outline_mm" if i == 0 and len(shapes) >= 1 and s.copies == 1 else f"shapes[{i}]"
+        key = s.key
         if not poly.is_valid:
             why = shapely.validation.explain_validity(poly)
             raise reader.error(key, f"outline is not a simple polygon ({why})")

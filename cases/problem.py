@@ -112,7 +112,7 @@ class Problem:
         ux, uy, w, u = maxima.T
         return Deformation(ux, uy, w, u, rewards.gaussian(ux, w, sx, sz), rewards.bell(ux, w))
 
-    def evaluator(self, budget: int | None = None) -> "Evaluator":
+    def evaluator(self, budget: int | None = None) -> Evaluator:
         return Evaluator(self, budget)
 
     def solve_direct(self, task: int, layout) -> dict:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+
 import numpy as np
 import shapely
 
@@ -37,6 +38,7 @@ class Shape:
     polygon: np.ndarray  # (n, 2) m
     copies: int = 1
     about: tuple[float, float] = (0.0, 0.0)
+    key: str = "outline_mm"  # where it came from in the file, for error messages
 
 
 @dataclass(frozen=True)
@@ -134,10 +136,10 @@ class CaseSpec:
     measure_spacing: float
     validation: Validation | None = None
 
-    def with_material(self, material: Material) -> "CaseSpec":
+    def with_material(self, material: Material) -> CaseSpec:
         return replace(self, material=material)
 
-    def with_agents(self, n_agents: int) -> "CaseSpec":
+    def with_agents(self, n_agents: int) -> CaseSpec:
         if self.agent_regions:
             raise CaseError(self.source, "agents.regions", "the case names its agents' regions; "
                             "their number cannot be changed")
@@ -148,13 +150,13 @@ class CaseSpec:
                             f"{len(self.candidates)} fixture candidates")
         return replace(self, n_agents=n_agents)
 
-    def with_mesh_scale(self, factor: float) -> "CaseSpec":
+    def with_mesh_scale(self, factor: float) -> CaseSpec:
         """Every element size multiplied by ``factor`` (0.5 = twice as fine)."""
         mesh = replace(self.mesh, size=self.mesh.size * factor,
                        refine=tuple(replace(r, size=r.size * factor) for r in self.mesh.refine))
         return replace(self, mesh=mesh)
 
-    def with_tasks(self, indices) -> "CaseSpec":
+    def with_tasks(self, indices) -> CaseSpec:
         return replace(self, tasks=tuple(self.tasks[i] for i in indices))
 
 
@@ -292,7 +294,8 @@ def _geometry(r: Reader) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
     thickness = r.number("thickness", "length", positive=True)
     shapes: list[Shape] = []
     if r.has("outline"):
-        shapes.append(Shape("union", r.array("outline", "length", shape=(-1, 2))))
+        shapes.append(Shape("union", r.array("outline", "length", shape=(-1, 2)),
+                            key=r._unit_key("outline", None) or "outline_mm"))
     for s in r.tables("shapes"):
         op = s.text("op", "union", ("union", "difference"))
         kinds = [k for k in ("polygon", "circle", "rectangle") if s.has(k)]
@@ -313,7 +316,7 @@ def _geometry(r: Reader) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
         copies = s.integer("copies", 1, minimum=1)
         about = tuple(s.array("about", "length", np.zeros(2), shape=(2,)))
         s.finish()
-        shapes.append(Shape(op, poly, copies, about))
+        shapes.append(Shape(op, poly, copies, about, key=s.prefix.split(".", 1)[1]))
     if not shapes:
         raise r.error("outline_mm", "missing (or give [[geometry.shapes]])")
     if shapes[0].op != "union":
@@ -367,6 +370,17 @@ def _holds(r: Reader, default: tuple[str, ...] | None, allowed: tuple[str, ...])
     return tuple(holds)
 
 
+def _boundary_segment(r: Reader, polygon: shapely.Polygon) -> np.ndarray:
+    """A segment (2 x 2, m) that must lie along the part's boundary."""
+    seg = r.array("segment", "length", shape=(2, 2))
+    line = shapely.LineString(seg)
+    tol = 1e-6 * max(1.0, line.length)
+    if line.length == 0 or line.difference(polygon.boundary.buffer(tol)).length > tol:
+        raise r.error(r._unit_key("segment", None) or "segment_mm",
+                      "does not lie along the part's boundary")
+    return seg
+
+
 def _support(r: Reader, polygon: shapely.Polygon) -> Support:
     holds = _holds(r, ..., DOF_NAMES)
     name = r.text("name", "support")
@@ -375,9 +389,7 @@ def _support(r: Reader, polygon: shapely.Polygon) -> Support:
         raise r.error("segment_mm", "give exactly one of segment_*, hole, boundary, point_*")
     sup: Support
     if where[0] == "segment":
-        seg = r.array("segment", "length", shape=(2, 2))
-        if polygon.boundary.distance(shapely.LineString(seg)) > 1e-6:
-            raise r.error("segment_mm", "does not touch the part's boundary")
+        seg = _boundary_segment(r, polygon)
         sup = Support(name, holds, segment=seg)
     elif where[0] == "hole":
         hole = r.integer("hole", minimum=0)
@@ -470,9 +482,7 @@ def _load(r: Reader, polygon: shapely.Polygon) -> Load:
     elif kind == "patch":
         ld = _patch(r, r.array("at", "length", shape=(2,)), polygon)
     else:
-        seg = r.array("segment", "length", shape=(2, 2))
-        if polygon.boundary.distance(shapely.LineString(seg)) > 1e-6:
-            raise r.error("segment_mm", "does not touch the part's boundary")
+        seg = _boundary_segment(r, polygon)
         ld = Load(kind, force=r.array("force", "force", shape=(3,)), segment=seg)
     r.finish()
     return ld
@@ -534,5 +544,9 @@ def _validation(r: Reader) -> Validation:
     coefficient = r.number("coefficient", None, positive=True)
     scale = r.text("scale", choices=("q a^4 / D", "P a^2 / D", "F L / (E b t)"))
     lengths = {k: r.number(k, "length", positive=True) for k in ("a", "b", "L") if r.has(k)}
+    need = ("L", "b") if scale.startswith("F") else ("a",)
+    for k in need:
+        if k not in lengths:
+            raise r.error(f"{k}_<unit>", f"missing (the scale '{scale}' needs it)")
     r.finish()
     return Validation(quantity, at, coefficient, scale, lengths)

@@ -89,14 +89,14 @@ class Reader:
             raise self.error(name, f"must be one of {', '.join(choices)}; got '{value}'")
         return value
 
-    def table(self, name: str, required: bool = False) -> "Reader | None":
+    def table(self, name: str, required: bool = False) -> Reader | None:
         if name not in self.data:
             if required:
                 raise self.error(name, "missing")
             return None
         return Reader(self.raw(name), self.source, self.key(name))
 
-    def tables(self, name: str) -> list["Reader"]:
+    def tables(self, name: str) -> list[Reader]:
         """An array of tables (``[[name]]``), possibly empty."""
         value = self.raw(name, [], (list,))
         out = []

@@ -1,0 +1,55 @@
+"""Shared test helpers: a small valid case file that bad-input tests break one key at a time."""
+
+from __future__ import annotations
+
+import pytest
+
+PLATE = """
+[case]
+description = "tiny test plate"
+
+[material]
+name = "aluminium"
+
+[geometry]
+thickness_mm = 5
+outline_mm = [[0, 0], [400, 0], [400, 200], [0, 200]]
+
+[mesh]
+size_mm = 40
+
+[[supports]]
+name = "left"
+segment_mm = [[0, 0], [0, 200]]
+kind = "clamped"
+
+[fixtures]
+radius_mm = 10
+points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]
+
+[agents]
+count = 2
+
+[[tasks]]
+kind = "drilling"
+line_mm = [[350, 100], [380, 100]]
+count = 3
+force_N = [10, 0, -100]
+radius_mm = 8
+"""
+
+
+@pytest.fixture
+def plate_toml(tmp_path):
+    """Write PLATE, optionally edited by (old, new) replacements; returns the path."""
+
+    def make(*edits: tuple[str, str], name: str = "plate.toml") -> str:
+        text = PLATE
+        for old, new in edits:
+            assert old in text, old
+            text = text.replace(old, new)
+        path = tmp_path / name
+        path.write_text(text)
+        return str(path)
+
+    return make

@@ -1,0 +1,110 @@
+"""Bad input: one line naming file, key and problem; exit code 2; no traceback; nothing written."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from bench.cli import main
+
+# (id, edits to the valid plate, text the message must contain: the key and the problem)
+BAD_FILES = [
+    ("missing key", [("thickness_mm = 5\n", "")], ["geometry.thickness_<unit>", "missing"]),
+    ("unknown material", [('name = "aluminium"', 'name = "unobtainium"')],
+     ["material.name", "unknown material"]),
+    ("self-intersecting outline", [("[[0, 0], [400, 0], [400, 200], [0, 200]]",
+                                    "[[0, 0], [400, 200], [400, 0], [0, 200]]")],
+     ["outline_mm", "not a simple polygon"]),
+    ("candidate outside the part", [("[300, 150]]", "[500, 150]]")], ["fixtures.points_mm", "outside"]),
+    ("overlapping agent sets", [("count = 2\n", 'count = 2\n[[agents.regions]]\nname = "a"\n'
+                                 "polygon_mm = [[0, 0], [250, 0], [250, 200], [0, 200]]\n"
+                                 '[[agents.regions]]\nname = "b"\n'
+                                 "polygon_mm = [[150, 0], [400, 0], [400, 200], [150, 200]]\n")],
+     ["agents.regions[1]", "overlaps"]),
+    ("fewer candidates than agents", [("count = 2\n", "count = 7\n")], ["agents.count", "only 6"]),
+    ("part free to move rigidly", [('kind = "clamped"', 'kind = "simple"')],
+     ["supports", "free to move rigidly out of plane"]),
+    ("negative thickness", [("thickness_mm = 5", "thickness_mm = -5")],
+     ["geometry.thickness_mm", "must be positive"]),
+    ("NaN load", [("force_N = [10, 0, -100]", "force_N = [nan, 0, -100]")], ["force_N", "finite"]),
+    ("unknown unit", [("thickness_mm = 5", "thickness_in = 0.2")], ["geometry.thickness_in", "unknown unit"]),
+    ("unit missing", [("thickness_mm = 5", "thickness = 5")], ["geometry.thickness", "unit in the key"]),
+    ("unknown key", [("[mesh]\n", "[mesh]\nsize_fine_mm = 3\n")], ["mesh.size_fine_mm", "unknown key"]),
+    ("not TOML", [("[mesh]\n", "[mesh\n")], ["not valid TOML"]),
+    ("wrong type", [("count = 3", 'count = "three"')], ["tasks[0].count", "whole number"]),
+    ("in-plane point load", [("radius_mm = 8", "radius_mm = 0")], ["radius_mm", "singular"]),
+    ("support off the boundary", [("segment_mm = [[0, 0], [0, 200]]", "segment_mm = [[50, 0], [50, 200]]")],
+     ["supports[0].segment_mm", "does not lie along"]),
+    ("load outside the part", [("[[350, 100], [380, 100]]", "[[350, 100], [480, 100]]")],
+     ["line_mm", "outside the part"]),
+    ("no supports", [('[[supports]]\nname = "left"\nsegment_mm = [[0, 0], [0, 200]]\nkind = "clamped"\n', "")],
+     ["supports", "free to move rigidly"]),
+    ("bad holds", [('kind = "clamped"', 'holds = ["ux", "spin"]')], ["supports[0].holds", "distinct names"]),
+    ("Poisson ratio", [('name = "aluminium"', 'name = "aluminium"\nnu = 0.7')], ["material.nu", "(-1, 0.5)"]),
+]
+
+
+def _one_line_error(capsys, argv, code=2) -> str:
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == code, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.mark.parametrize("label,edits,needles", BAD_FILES, ids=[b[0] for b in BAD_FILES])
+def test_bad_case_file(capsys, plate_toml, label, edits, needles):
+    path = plate_toml(*edits)
+    line = _one_line_error(capsys, ["evaluate", path, "--task", "0", "--layout", "0,3"])
+    assert "plate.toml" in line
+    for needle in needles:
+        assert needle in line, line
+
+
+BAD_ARGS = [
+    (["evaluate", "no_such_case", "--task", "0", "--layout", "0"], ["no_such_case", "unknown case"]),
+    (["evaluate", "{plate}", "--material", "wood", "--task", "0", "--layout", "0,3"],
+     ["--material", "unknown material"]),
+    (["evaluate", "{plate}", "--task", "0", "--layout", "0"], ["layout", "2 integer"]),
+    (["evaluate", "{plate}", "--task", "0", "--layout", "0,1"], ["layout", "not in agent 1"]),
+    (["evaluate", "{plate}", "--task", "9", "--layout", "0,3"], ["task", "0..2"]),
+    (["evaluate", "{plate}", "--task", "0", "--layout", "a,b"], ["--layout", "comma-separated"]),
+    (["evaluate", "missing.toml", "--task", "0", "--layout", "0"], ["missing.toml", "no such case file"]),
+    (["show", "{plate}", "--bogus"], ["No such option"]),
+]
+
+
+@pytest.mark.parametrize("argv,needles", BAD_ARGS, ids=[" ".join(a[0][:1] + a[0][2:4]) for a in BAD_ARGS])
+def test_bad_arguments(capsys, plate_toml, argv, needles):
+    path = plate_toml()
+    line = _one_line_error(capsys, [a.replace("{plate}", path) for a in argv])
+    for needle in needles:
+        assert needle in line, line
+
+
+def test_extends_cycle(capsys, tmp_path):
+    (tmp_path / "a.toml").write_text('[case]\nextends = "b.toml"\n')
+    (tmp_path / "b.toml").write_text('[case]\nextends = "a.toml"\n')
+    line = _one_line_error(capsys, ["show", str(tmp_path / "a.toml")])
+    assert "case.extends" in line and "cycle" in line
+
+
+def test_bad_input_writes_nothing(plate_toml, tmp_path, capsys):
+    out = tmp_path / "pic.png"
+    out.write_bytes(b"old picture")
+    path = plate_toml(("thickness_mm = 5", "thickness_mm = -5"))
+    _one_line_error(capsys, ["show", path, "--out", str(out)])
+    assert out.read_bytes() == b"old picture"
+
+
+def test_console_script_exit_code(plate_toml):
+    """The installed entry point, in a fresh process: exit 2, one line, no traceback."""
+    path = plate_toml(("thickness_mm = 5", "thickness_mm = -5"))
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "show", path], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert "geometry.thickness_mm: must be positive" in proc.stderr
