@@ -138,6 +138,59 @@ def perf(case: str, batch: int, as_json: bool) -> None:
             click.echo(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
 
 
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
+def solvers(as_json: bool) -> None:
+    """List the registered planners (built-ins and plugins) with one-line descriptions."""
+    from solvers.registry import available
+
+    rows = [{"planner": n, "description": c.description, "modes": list(c.modes),
+             "module": c.__module__} for n, c in available().items()]
+    if as_json:
+        click.echo(json.dumps(rows, indent=1))
+    else:
+        for r in rows:
+            click.echo(f"{r['planner']:>10}  {r['description']}")
+
+
+@cli.command()
+@click.argument("case")
+@click.option("--planner", "planner_name", required=True,
+              help="Registered name, or package.module:Class of your own planner.")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--agents", type=int, help="Number of agents (default: the case's).")
+@click.option("--budget", type=int, help="Hard sample budget (default: unlimited).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--mode", type=click.Choice(["per-task", "shared"]), default="per-task", show_default=True)
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a config field.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
+              help="PNG of the anytime curves (best so far against samples).")
+def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_json, plot) -> None:
+    """Plan fixture layouts for CASE with one planner and report what it reached."""
+    from solvers.config import apply_sets
+    from solvers.registry import get
+
+    if budget is not None and budget <= 0:
+        raise click.BadParameter(f"must be positive, got {budget}", param_hint="--budget")
+    cls = get(planner_name)
+    planner = cls(**apply_sets(cls.Config, sets, cls.name))
+    problem = _problem(case, material, agents)
+    result = planner.solve(problem, budget, seed=seed, mode=mode)
+    if plot:
+        from bench.plots import anytime_plot
+
+        anytime_plot(result, plot)
+    summary = result.summary()
+    if as_json:
+        click.echo(json.dumps(summary, indent=1, default=str))
+    else:
+        for k in ("planner", "case", "material", "mode", "seed", "budget", "samples",
+                  "mean_max_deformation_m", "worst_max_deformation_m", "mean_reward"):
+            v = summary[k]
+            click.echo(f"{k:>24}: {v:.6g}" if isinstance(v, float) else f"{k:>24}: {v}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

@@ -88,6 +88,21 @@ def write_vtk(problem: Problem, task: int, layout, out: Path) -> Path:
     return out
 
 
+def anytime_plot(result, out: Path) -> Path:
+    """Best max deformation so far against samples spent, one line per task (log x)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    trace = result.trace
+    for task in np.unique(trace[:, 0])[:20]:
+        rows = trace[trace[:, 0] == task]
+        ax.step(rows[:, 1], rows[:, 2] * 1e6, where="post", lw=0.8,
+                label="shared (worst task)" if task < 0 else None)
+    ax.set_xscale("log")
+    ax.set_xlabel("samples spent")
+    ax.set_ylabel("best max |u| so far (um)")
+    ax.set_title(f"{result.planner} on {result.case} ({result.mode}, seed {result.seed})", fontsize=9)
+    return _save(fig, out)
+
+
 def _save(fig, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()

@@ -150,11 +150,11 @@ class ScaledLU:
 
 def residual(A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> np.ndarray:
     """b - A x, accurate to the last bit (double-double accumulation), any number of columns."""
-    X = np.ascontiguousarray(np.atleast_2d(x.T))
-    Bt = np.ascontiguousarray(np.atleast_2d(b.T))
-    out = np.empty_like(Bt)
-    residual_dd(A.indptr, A.indices, A.data, X, Bt, out)
-    return out[0] if x.ndim == 1 else out.T
+    X = np.ascontiguousarray(x.reshape(len(x), -1))
+    B = np.ascontiguousarray(b.reshape(len(b), -1))
+    out = np.empty_like(B)
+    residual_dd(A.indptr, A.indices, A.data, X, B, out)
+    return out.reshape(b.shape)
 
 
 @numba.njit(cache=True, inline="always")
@@ -179,16 +179,21 @@ def _two_prod(a, b):
 
 @numba.njit(parallel=True, cache=True)
 def residual_dd(indptr, indices, data, X, B, out):
-    """out[c] = B[c] - A X[c] for each column c (rows of X, B), summed in double-double."""
-    for c in numba.prange(X.shape[0]):
-        x = X[c]
-        for i in range(len(indptr) - 1):
-            hi, lo = B[c, i], 0.0
-            for p in range(indptr[i], indptr[i + 1]):
-                ph, pl = _two_prod(-data[p], x[indices[p]])
-                hi, e = _two_sum(hi, ph)
-                lo += e + pl
-            out[c, i] = hi + lo
+    """out = B - A X for CSR A and row-major X, B (n x m), each entry summed in double-double."""
+    m = X.shape[1]
+    for i in numba.prange(len(indptr) - 1):
+        hi = B[i].copy()
+        lo = np.zeros(m)
+        for p in range(indptr[i], indptr[i + 1]):
+            a = -data[p]
+            xr = X[indices[p]]
+            for c in range(m):
+                ph, pl = _two_prod(a, xr[c])
+                h, e = _two_sum(hi[c], ph)
+                hi[c] = h
+                lo[c] += e + pl
+        for c in range(m):
+            out[i, c] = hi[c] + lo[c]
 
 
 def find_cells(mesh, pts: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ from cases.errors import NumericalError
 from cases.fem import COMPONENTS, PlateModel
 
 #: compliance columns are computed this many at a time (bounds the dense back-solve block)
-CHUNK = 256
+CHUNK = 512
 
 
 class FieldOracle:

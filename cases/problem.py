@@ -141,11 +141,15 @@ class Evaluator:
     def remaining(self) -> float:
         return math.inf if self.budget is None else self.budget - self.samples
 
-    def charge(self, n: int) -> None:
-        """Spend ``n`` samples, or raise :class:`BudgetExhausted` and spend none."""
+    def afford(self, n: int) -> None:
+        """Raise :class:`BudgetExhausted` unless ``n`` more samples fit in the budget."""
         if n > self.remaining:
             raise BudgetExhausted(f"{self.problem.name}: budget of {self.budget} samples exhausted "
                                   f"({self.samples} spent, {n} more asked)")
+
+    def charge(self, n: int) -> None:
+        """Spend ``n`` samples, or raise :class:`BudgetExhausted` and spend none."""
+        self.afford(n)
         self.samples += n
 
     def evaluate(self, task: int, layouts) -> Deformation:

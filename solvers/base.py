@@ -1,0 +1,186 @@
+"""The planner interface: a config dataclass, a ``plan`` hook, and a scored, traced result.
+
+In the spirit of pymoo's Algorithm and BenchMARL's AlgorithmConfig: a planner is a class with a
+``name``, a one-line ``description`` and a frozen ``Config`` dataclass (one docstring per field).
+:meth:`Planner.solve` reads like the maths::
+
+    result = Planner(config).solve(problem, budget=2000, seed=0, mode="per-task")
+
+It hands the planner a :class:`TracedEvaluator` (the counted oracle plus an anytime trace) and a
+seeded generator, calls :meth:`Planner.plan`, checks the layouts it returns, and scores them. The
+score (true max deformation of each returned layout) is the benchmark's measurement, taken on the
+uncounted oracle after the planner has finished: the planner never sees it.
+
+Modes: ``per-task`` (reconfigurable fixtures: one layout per task, each judged on its task) and
+``shared`` (one layout for every task, judged by its worst task).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cases.errors import CaseError, FixbenchError
+from cases.problem import Deformation, Evaluator, Problem
+
+MODES = ("per-task", "shared")
+
+
+class PlannerError(FixbenchError):
+    """A planner cannot run as asked (bad config, budget too small for the method, ...)."""
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Base of every planner's configuration; subclasses add documented fields."""
+
+    def hash(self) -> str:
+        """Short stable hash of the config (for result rows)."""
+        text = json.dumps(asdict(self), sort_keys=True, default=str)
+        return hashlib.sha1(text.encode()).hexdigest()[:10]
+
+
+class TracedEvaluator(Evaluator):
+    """A counted evaluator that also records the anytime trace and the best layout per task.
+
+    Trace rows are ``(task, samples, best)``: after the planner had spent ``samples`` in total, the
+    best max deformation it had seen on ``task`` was ``best``. Shared mode records task -1 with the
+    worst-over-tasks objective.
+    """
+
+    def __init__(self, problem: Problem, budget: int | None):
+        super().__init__(problem, budget)
+        self.best = np.full(problem.n_tasks, np.inf)
+        self.best_layout = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
+        self.shared_best, self.shared_layout = np.inf, None
+        self.trace: list[tuple[int, int, float]] = []
+
+    def evaluate(self, task: int, layouts) -> Deformation:
+        d = super().evaluate(task, layouts)
+        i = int(np.argmin(d.max_u))
+        if d.max_u[i] < self.best[task]:
+            self.best[task] = d.max_u[i]
+            self.best_layout[task] = np.atleast_2d(layouts)[i]
+        self.trace.append((int(task), self.samples, float(self.best[task])))
+        return d
+
+    def evaluate_shared(self, layouts) -> np.ndarray:
+        """Worst max deformation over all tasks of each layout; costs n_tasks samples per layout."""
+        layouts = self.problem.check_layouts(layouts)
+        self.afford(len(layouts) * self.problem.n_tasks)  # all or nothing; charged task by task
+        worst = np.zeros(len(layouts))
+        for t in range(self.problem.n_tasks):
+            worst = np.maximum(worst, self.evaluate(t, layouts).max_u)
+        i = int(np.argmin(worst))
+        if worst[i] < self.shared_best:
+            self.shared_best, self.shared_layout = float(worst[i]), layouts[i].copy()
+        self.trace.append((-1, self.samples, self.shared_best))
+        return worst
+
+
+@dataclass
+class PlanResult:
+    """What a planner run produced, scored on the true (uncounted) oracle afterwards."""
+
+    planner: str
+    config: dict
+    config_hash: str
+    case: str
+    material: str
+    mode: str
+    seed: int
+    budget: int | None
+    samples: int  # samples the planner spent online
+    layouts: np.ndarray  # (n_tasks, n_agents) global candidate indices
+    max_deformation: np.ndarray  # (n_tasks,) metres, max |u| of each task's layout
+    reward: np.ndarray  # (n_tasks,) Gaussian reward of each task's layout
+    trace: np.ndarray  # (rows, 3): task, samples, best-so-far
+    info: dict = field(default_factory=dict)  # planner-specific figures (gaps, iterations, ...)
+
+    @property
+    def objective(self) -> float:
+        """Mean over tasks (per-task) or worst task (shared) of the max deformation."""
+        return float(self.max_deformation.max() if self.mode == "shared" else self.max_deformation.mean())
+
+    def summary(self) -> dict[str, Any]:
+        return {"planner": self.planner, "case": self.case, "material": self.material,
+                "mode": self.mode, "seed": self.seed, "budget": self.budget, "samples": self.samples,
+                "mean_max_deformation_m": float(self.max_deformation.mean()),
+                "worst_max_deformation_m": float(self.max_deformation.max()),
+                "mean_reward": float(self.reward.mean()), "config": self.config, "info": self.info,
+                "per_task": [{"task": t, "layout": self.layouts[t].tolist(),
+                              "max_deformation_m": float(self.max_deformation[t]),
+                              "reward": float(self.reward[t])} for t in range(len(self.layouts))]}
+
+
+class Planner(ABC):
+    """Base class of every planner (see the module docstring and README, "Write your own planner")."""
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    Config: ClassVar[type[PlannerConfig]] = PlannerConfig
+    modes: ClassVar[tuple[str, ...]] = MODES
+
+    def __init__(self, config: PlannerConfig | None = None, **overrides: Any):
+        config = config if config is not None else self.Config()
+        try:
+            self.config = replace(config, **overrides) if overrides else config
+        except TypeError as exc:
+            raise PlannerError(f"planner '{self.name}': {exc}") from None
+
+    @abstractmethod
+    def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator,
+             mode: str) -> tuple[np.ndarray, dict]:
+        """Return (layouts, info): layouts is (n_tasks, n_agents), all rows equal in shared mode.
+
+        Learn only through ``ev`` (every evaluation is counted); draw randomness only from ``rng``.
+        """
+
+    def solve(self, problem: Problem, budget: int | None, seed: int = 0,
+              mode: str = "per-task") -> PlanResult:
+        if mode not in self.modes:
+            raise PlannerError(f"planner '{self.name}' does not support mode '{mode}' "
+                               f"(supports: {', '.join(self.modes)})")
+        if budget is not None and budget <= 0:
+            raise CaseError("--budget", "", f"must be positive, got {budget}")
+        ev = TracedEvaluator(problem, budget)
+        layouts, info = self.plan(problem, ev, np.random.default_rng(seed), mode)
+        layouts = problem.check_layouts(np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents))
+        if mode == "shared" and not (layouts == layouts[0]).all():
+            raise PlannerError(f"planner '{self.name}' returned different layouts in shared mode")
+        maxima = np.vstack([problem.oracle.evaluate(t, layouts[t:t + 1]) for t in range(problem.n_tasks)])
+        scored = problem.deformation(maxima)
+        return PlanResult(self.name, _config_dict(self.config), self.config.hash(), problem.name,
+                          problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
+                          scored.max_u, scored.reward_gaussian, np.array(ev.trace, dtype=float).reshape(-1, 3),
+                          info)
+
+
+def _config_dict(config: PlannerConfig) -> dict:
+    return {f.name: getattr(config, f.name) for f in fields(config)}
+
+
+def split_budget(budget: int | None, parts: int, default: int) -> list[int]:
+    """Split a total budget into ``parts`` near-equal shares (``default`` each when unlimited)."""
+    if budget is None:
+        return [default] * parts
+    base, extra = divmod(budget, parts)
+    return [base + (i < extra) for i in range(parts)]
+
+
+def random_layouts(problem: Problem, rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` uniform random layouts, one candidate per agent from its own set."""
+    return np.column_stack([rng.choice(a, size=n) for a in problem.action_sets]).astype(np.int64)
+
+
+def require_budget(name: str, have: float, need: int, what: str) -> None:
+    """Clear error when a budget is too small for a method."""
+    if have < need:
+        raise PlannerError(f"planner '{name}': budget too small: {what} needs {need} samples, "
+                           f"{'unlimited' if math.isinf(have) else int(have)} available")

@@ -1,0 +1,3 @@
+"""Imports every built-in planner so that each registers itself."""
+
+from solvers import random_search  # noqa: F401

@@ -1,0 +1,104 @@
+"""The fast oracle equals a direct constrained solve, and every sample is counted exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cases import BudgetExhausted, CaseError, load_problem
+
+PARTS = ["wing_panel", "wing_spar", "bus_panel", "fan"]
+FIELDS = ("max_ux", "max_uy", "max_w", "max_u")
+
+
+def _layouts(problem):
+    """Hypothesis strategy: (task, layout) with one candidate from each agent's set."""
+    sets = problem.action_sets
+    return st.tuples(st.integers(0, problem.n_tasks - 1),
+                     st.tuples(*[st.sampled_from(a.tolist()) for a in sets]))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", PARTS)
+def test_oracle_equals_direct_solve(case):
+    problem = load_problem(case)
+    worst = []
+
+    @settings(max_examples=200, deadline=None, derandomize=True, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(_layouts(problem))
+    def check(drawn):
+        task, layout = drawn
+        fast = problem.evaluator().evaluate(task, [list(layout)])
+        slow = problem.direct_deformation(task, [list(layout)])
+        for f in FIELDS:
+            a, b = getattr(fast, f)[0], getattr(slow, f)[0]
+            rel = abs(a - b) / max(abs(b), 1e-300) if b != 0 else abs(a)
+            worst.append(rel)
+            assert rel <= 1e-9, (f, a, b, rel)
+
+    check()
+    assert len(worst) >= 4 * 200
+    print(f"{case}: worst relative difference {max(worst):.2e} over {len(worst) // 4} layouts")
+
+
+def test_batched_equals_one_by_one():
+    problem = load_problem("wing_panel_small")
+    rng = np.random.default_rng(3)
+    layouts = np.column_stack([rng.choice(a, 64) for a in problem.action_sets])
+    batch = problem.evaluator().evaluate(1, layouts).max_u
+    single = [problem.evaluator().evaluate(1, lay[None, :]).max_u[0] for lay in layouts]
+    np.testing.assert_array_equal(batch, single)
+
+
+def test_samples_counted_exactly():
+    problem = load_problem("wing_panel_small")
+    ev = problem.evaluator(budget=10)
+    lay = [[a[0] for a in problem.action_sets]]
+    ev.evaluate(0, lay * 3)
+    ev.evaluate(1, lay)
+    assert ev.samples == 4 and ev.remaining == 6
+    with pytest.raises(BudgetExhausted, match="budget of 10"):
+        ev.evaluate(0, lay * 7)
+    assert ev.samples == 4  # a refused batch spends nothing
+    ev.evaluate(0, lay * 6)
+    assert ev.samples == 10 and ev.remaining == 0
+    with pytest.raises(BudgetExhausted):
+        ev.evaluate(0, lay)
+
+
+def test_compliance_columns_are_charged():
+    problem = load_problem("wing_panel_small")
+    ev = problem.evaluator()
+    per = {f: fo.per for f, fo in problem.oracle.fields.items()}
+    C, H = ev.compliance("bending", [0, 1, 2])
+    assert ev.samples == 3 * per["bending"]
+    assert C.shape == (3 * per["bending"], problem.oracle.fields["bending"].n_rows)
+    ev.compliance("membrane", [0, 0, 5])  # duplicates are one candidate
+    assert ev.samples == 3 * per["bending"] + 2 * per["membrane"]
+    with pytest.raises(BudgetExhausted):
+        problem.evaluator(budget=1).compliance("membrane", [0])
+
+
+def test_budget_must_be_positive():
+    with pytest.raises(CaseError, match="must be positive"):
+        load_problem("wing_panel_small").evaluator(budget=0)
+
+
+def test_fixtures_reduce_deformation():
+    """Physics sanity: adding fixtures never increases the energy-norm response; here max |u|."""
+    problem = load_problem("wing_panel_small")
+    free = problem.model.measure(problem.model.solve_direct(0, np.zeros((0, 2))))
+    held = problem.evaluator().evaluate(0, [[a[len(a) // 2] for a in problem.action_sets]])
+    assert held.max_u[0] < 0.5 * np.abs(free["w"]).max()
+
+
+def test_deterministic():
+    problem = load_problem("wing_panel_small")
+    rng = np.random.default_rng(0)
+    layouts = np.column_stack([rng.choice(a, 200) for a in problem.action_sets])
+    a = problem.evaluator().evaluate(2, layouts).max_u
+    b = problem.evaluator().evaluate(2, layouts).max_u
+    np.testing.assert_array_equal(a, b)
