@@ -28,8 +28,9 @@ from cases.fem import PlateModel
 from cases.oracle import Oracle
 from cases.spec import CaseSpec, load_case_spec
 
-#: models and oracles are cached per (case file contents, material, mesh scale) in this process
-_CACHE: dict[tuple, tuple[PlateModel, Oracle]] = {}
+#: models and oracles are cached per (case, material, mesh scale, tasks, candidates) in a process
+_MODELS: dict[tuple, PlateModel] = {}
+_ORACLES: dict[tuple, Oracle] = {}
 
 
 @dataclass(frozen=True)
@@ -76,18 +77,17 @@ class Problem:
 
     @cached_property
     def model(self) -> PlateModel:
-        return self._model_oracle()[0]
+        key = self._key()
+        if key not in _MODELS:
+            _MODELS[key] = PlateModel(self.spec)
+        return _MODELS[key]
 
     @cached_property
     def oracle(self) -> Oracle:
-        return self._model_oracle()[1]
-
-    def _model_oracle(self) -> tuple[PlateModel, Oracle]:
         key = self._key()
-        if key not in _CACHE:
-            model = PlateModel(self.spec)
-            _CACHE[key] = (model, Oracle(model, self.candidates))
-        return _CACHE[key]
+        if key not in _ORACLES:
+            _ORACLES[key] = Oracle(self.model, self.candidates)
+        return _ORACLES[key]
 
     def check_layouts(self, layouts) -> np.ndarray:
         """Layouts as an (L, n_agents) int array, each entry from its agent's own set."""
