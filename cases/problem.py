@@ -41,6 +41,7 @@ class Deformation:
     max_uy: np.ndarray
     max_w: np.ndarray
     max_u: np.ndarray  # magnitude sqrt(ux^2 + uy^2 + w^2): the objective planners minimise
+    max_uxy: np.ndarray  # in-plane magnitude sqrt(ux^2 + uy^2)
     reward_gaussian: np.ndarray
     reward_bell: np.ndarray
 
@@ -108,9 +109,10 @@ class Problem:
         return int(task)
 
     def deformation(self, maxima: np.ndarray) -> Deformation:
+        """Rewards use the in-plane magnitude as the literature's "x" and w as its "z"."""
         sx, sz = self.spec.reward_sigma
-        ux, uy, w, u = maxima.T
-        return Deformation(ux, uy, w, u, rewards.gaussian(ux, w, sx, sz), rewards.bell(ux, w))
+        ux, uy, w, u, uxy = maxima.T
+        return Deformation(ux, uy, w, u, uxy, rewards.gaussian(uxy, w, sx, sz), rewards.bell(uxy, w))
 
     def evaluator(self, budget: int | None = None) -> Evaluator:
         return Evaluator(self, budget)
@@ -122,8 +124,10 @@ class Problem:
 
     def direct_deformation(self, task: int, layout) -> Deformation:
         v = self.model.measure(self.solve_direct(task, layout))
-        mag = np.sqrt(v["ux"] ** 2 + v["uy"] ** 2 + v["w"] ** 2)
-        m = np.array([[np.abs(v["ux"]).max(), np.abs(v["uy"]).max(), np.abs(v["w"]).max(), mag.max()]])
+        inplane = np.sqrt(v["ux"] ** 2 + v["uy"] ** 2)
+        mag = np.sqrt(inplane**2 + v["w"] ** 2)
+        m = np.array([[np.abs(v["ux"]).max(), np.abs(v["uy"]).max(), np.abs(v["w"]).max(), mag.max(),
+                       inplane.max()]])
         return self.deformation(m)
 
 

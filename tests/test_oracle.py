@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from cases import BudgetExhausted, CaseError, load_problem
 
 PARTS = ["wing_panel", "wing_spar", "bus_panel", "fan"]
-FIELDS = ("max_ux", "max_uy", "max_w", "max_u")
+FIELDS = ("max_ux", "max_uy", "max_w", "max_u", "max_uxy")
 
 
 def _layouts(problem):
