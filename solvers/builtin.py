@@ -1,3 +1,4 @@
 """Imports every built-in planner so that each registers itself."""
 
 from solvers import random_search  # noqa: F401
+from solvers import evolutionary  # noqa: F401

@@ -108,3 +108,43 @@ def test_console_script_exit_code(plate_toml):
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert "geometry.thickness_mm: must be positive" in proc.stderr
+
+
+SOLVE_BAD = [
+    (["--planner", "no_such_planner"], ["unknown planner 'no_such_planner'"]),
+    (["--planner", "random", "--set", "batch"], ["--set batch", "key=value"]),
+    (["--planner", "random", "--set", "colour=red"], ["--set colour=red", "no setting 'colour'"]),
+    (["--planner", "random", "--set", "batch=many"], ["--set batch=many", "invalid literal"]),
+    (["--planner", "random", "--budget", "0"], ["--budget", "must be positive"]),
+    (["--planner", "random", "--budget", "-5"], ["--budget", "must be positive"]),
+    (["--planner", "no_module_here:Planner"], ["no_module_here:Planner", "cannot import"]),
+    (["--planner", "random", "--mode", "both"], ["--mode"]),
+]
+
+
+@pytest.mark.parametrize("extra,needles", SOLVE_BAD, ids=[" ".join(s[0]) for s in SOLVE_BAD])
+def test_bad_solve_arguments(capsys, plate_toml, extra, needles):
+    line = _one_line_error(capsys, ["solve", plate_toml(), *extra])
+    for needle in needles:
+        assert needle in line, line
+
+
+def test_plugin_that_raises_on_import(tmp_path):
+    """An installed plugin (entry point) whose module raises: one line, exit 2."""
+    (tmp_path / "broken_plugin.py").write_text("raise RuntimeError('kaboom at import')\n")
+    dist = tmp_path / "broken_plugin-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-plugin\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("[fixbench.planners]\nbroken = broken_plugin:Broken\n")
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "solvers"], capture_output=True, text=True,
+                          env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert "plugin 'broken'" in proc.stderr and "kaboom at import" in proc.stderr
+
+
+def test_planner_spec_that_raises_on_import(capsys, plate_toml, tmp_path, monkeypatch):
+    (tmp_path / "explodes.py").write_text("raise ImportError('missing dependency xyz')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    line = _one_line_error(capsys, ["solve", plate_toml(), "--planner", "explodes:Planner"])
+    assert "explodes:Planner" in line and "missing dependency xyz" in line

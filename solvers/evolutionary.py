@@ -1,0 +1,207 @@
+"""Evolutionary planners on pymoo: a genetic algorithm (``ga``) and particle swarm (``pso``).
+
+Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem` (:class:`_LayoutProblem`) whose
+``_evaluate`` decodes a whole population into layouts and makes one counted oracle call for it, so
+every generation is one batched call: ``ev.evaluate(task, layouts)`` in per-task mode (one sample a
+layout), ``ev.evaluate_shared(layouts)`` in shared mode (objective: the worst task; ``n_tasks``
+samples a layout).
+
+Encodings:
+
+- ``ga``: one integer gene per agent, the position in that agent's own action set
+  (``0..len(set)-1``); integer random sampling, SBX crossover and polynomial mutation with rounding
+  repair (pymoo's recipe for integer variables), duplicates eliminated.
+- ``pso``: mapping (a), continuous positions in the plane. Each agent has a point ``(x, y)``
+  (2 variables an agent) bounded by its set's bounding box, padded by half the median
+  nearest-neighbour spacing of all candidates (so border candidates get cells of the usual size
+  and a set on a line still has a box of positive width). A point is snapped to the agent's nearest
+  candidate with a KD-tree per agent. Why not (b), a continuous index rounded: the candidate order
+  is not spatially meaningful (a grid is numbered row by row, so index i+1 can be across the part),
+  and a velocity in index space would jump between rows; in the plane, neighbours in space are
+  neighbours in the search, which is what the deformation field is smooth in.
+
+Budget: a run gets an allowance of layouts (per-task mode: each task's ``split_budget`` share;
+shared mode: the budget divided by ``n_tasks``) and pymoo's ``("n_eval", allowance)`` termination.
+A generation that would pass the allowance is cut: its first individuals, up to what fits, are
+evaluated and the rest get ``F = +inf`` without being evaluated or charged; pymoo's counter then
+reaches the allowance and the run ends. So the samples spent never exceed the budget, and a budget
+smaller than one population is a documented best effort: the first (random) population is
+evaluated only as far as it fits, a uniform random sample. A budget with less than one layout per
+task (per task, or for the shared layout) raises :class:`~solvers.base.PlannerError`. A GA that
+can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
+
+Per-task mode returns ``ev.best_layout``, the best layout ever evaluated on each task (not the
+final population); shared mode returns ``ev.shared_layout``. ``info`` has ``generations`` and
+``n_eval`` (samples spent) per optimisation run: one run per task, or one run in shared mode.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from pymoo.algorithms.soo.nonconvex.ga import GA
+from pymoo.algorithms.soo.nonconvex.pso import PSO
+from pymoo.core.algorithm import Algorithm
+from pymoo.core.problem import Problem as PymooProblem
+from pymoo.operators.crossover.sbx import SBX
+from pymoo.operators.mutation.pm import PM
+from pymoo.operators.repair.rounding import RoundingRepair
+from pymoo.operators.sampling.lhs import LHS
+from pymoo.operators.sampling.rnd import IntegerRandomSampling
+from pymoo.optimize import minimize
+from pymoo.termination import get_termination
+from scipy.spatial import cKDTree
+
+from cases.problem import Problem
+from solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
+from solvers.registry import register
+
+
+class _LayoutProblem(PymooProblem):
+    """A population -> layouts -> one counted call per generation, capped at ``allowance`` layouts."""
+
+    def __init__(self, xl: np.ndarray, xu: np.ndarray, vtype: type,
+                 decode: Callable[[np.ndarray], np.ndarray],
+                 score: Callable[[np.ndarray], np.ndarray], allowance: int):
+        super().__init__(n_var=len(xl), n_obj=1, xl=xl, xu=xu, vtype=vtype)
+        self.decode, self.score, self.left = decode, score, allowance
+
+    def _evaluate(self, X, out, *args, **kwargs):
+        k = min(len(X), self.left)
+        F = np.full(len(X), np.inf)  # the cut tail of the last generation: never evaluated
+        if k:
+            F[:k] = self.score(self.decode(np.asarray(X[:k])))
+            self.left -= k
+        out["F"] = F
+
+
+class _EvolutionaryPlanner(Planner):
+    """Shared driver: one pymoo run per task (per-task) or one on the worst task (shared)."""
+
+    @abstractmethod
+    def _algorithm(self, problem: Problem) -> Algorithm:
+        """The configured pymoo algorithm (a fresh one per run)."""
+
+    @abstractmethod
+    def _encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable]:
+        """(xl, xu, vtype, decode): bounds, variable type and population -> layouts."""
+
+    def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
+        cfg = self.config
+        xl, xu, vtype, decode = self._encoding(problem)
+        if mode == "shared":
+            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
+            runs = [(ev.evaluate_shared, cfg.evals_per_task if ev.budget is None
+                     else int(ev.remaining // problem.n_tasks))]
+        else:
+            require_budget(self.name, ev.remaining, problem.n_tasks, "one layout per task")
+            shares = split_budget(ev.budget, problem.n_tasks, cfg.evals_per_task)
+            runs = [(lambda layouts, t=t: ev.evaluate(t, layouts).max_u, n) for t, n in enumerate(shares)]
+        generations, n_eval = [], []
+        for score, allowance in runs:
+            spent = ev.samples
+            res = minimize(_LayoutProblem(xl, xu, vtype, decode, score, allowance),
+                           self._algorithm(problem), get_termination("n_eval", allowance),
+                           seed=int(rng.integers(2**31)), verbose=False)
+            generations.append(int(res.algorithm.n_gen))
+            n_eval.append(ev.samples - spent)
+        info = {"generations": generations, "n_eval": n_eval}
+        if mode == "shared":
+            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), info
+        return ev.best_layout.copy(), info
+
+
+@dataclass(frozen=True)
+class GAConfig(PlannerConfig):
+    pop_size: int = 50
+    """Population size; also the offspring per generation (layouts per counted call)."""
+
+    crossover_prob: float = 0.9
+    """Probability that a mating pair is recombined by SBX (else the parents are copied)."""
+
+    crossover_eta: float = 3.0
+    """SBX distribution index: small spreads children far from their parents."""
+
+    mutation_eta: float = 3.0
+    """Polynomial-mutation distribution index: small makes large jumps in a gene."""
+
+    evals_per_task: int = 2000
+    """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
+
+
+@register
+class GeneticPlanner(_EvolutionaryPlanner):
+    name = "ga"
+    description = "pymoo genetic algorithm, one integer gene per agent (index into its set)"
+    Config = GAConfig
+
+    def _algorithm(self, problem: Problem) -> Algorithm:
+        cfg = self.config
+        return GA(pop_size=cfg.pop_size, sampling=IntegerRandomSampling(),
+                  crossover=SBX(prob=cfg.crossover_prob, eta=cfg.crossover_eta, vtype=float,
+                                repair=RoundingRepair()),
+                  mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
+                  eliminate_duplicates=True)
+
+    def _encoding(self, problem: Problem):
+        sets = problem.action_sets
+        xu = np.array([len(s) - 1 for s in sets], dtype=float)
+
+        def decode(X: np.ndarray) -> np.ndarray:
+            genes = np.rint(X).astype(np.int64)
+            return np.column_stack([s[genes[:, a]] for a, s in enumerate(sets)])
+
+        return np.zeros(len(sets)), xu, int, decode
+
+
+@dataclass(frozen=True)
+class PSOConfig(PlannerConfig):
+    swarm_size: int = 50
+    """Particles; also the layouts per counted call."""
+
+    w: float = 0.9
+    """Inertia weight (the start value when ``adaptive``)."""
+
+    c1: float = 2.0
+    """Cognitive weight: pull towards the particle's own best."""
+
+    c2: float = 2.0
+    """Social weight: pull towards the swarm's best."""
+
+    adaptive: bool = True
+    """Adapt w, c1, c2 from the swarm's spread each generation (pymoo's fuzzy rules)."""
+
+    max_velocity_rate: float = 0.2
+    """Largest step per generation as a fraction of the agent's box side."""
+
+    evals_per_task: int = 2000
+    """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
+
+
+@register
+class SwarmPlanner(_EvolutionaryPlanner):
+    name = "pso"
+    description = "pymoo particle swarm, a point in the plane per agent snapped to its nearest candidate"
+    Config = PSOConfig
+
+    def _algorithm(self, problem: Problem) -> Algorithm:
+        cfg = self.config
+        return PSO(pop_size=cfg.swarm_size, sampling=LHS(), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
+                   adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)
+
+    def _encoding(self, problem: Problem):
+        sets = problem.action_sets
+        points = [problem.candidates[s] for s in sets]
+        trees = [cKDTree(p) for p in points]
+        pad = 0.5 * float(np.median(cKDTree(problem.candidates).query(problem.candidates, k=2)[0][:, 1]))
+        xl = np.concatenate([p.min(axis=0) - pad for p in points])
+        xu = np.concatenate([p.max(axis=0) + pad for p in points])
+
+        def decode(X: np.ndarray) -> np.ndarray:
+            return np.column_stack([s[t.query(X[:, 2 * a:2 * a + 2])[1]]
+                                    for a, (s, t) in enumerate(zip(sets, trees))])
+
+        return xl, xu, float, decode

@@ -1,0 +1,92 @@
+"""The CLI end to end: every command has --help, JSON outputs carry their documented keys."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import pytest
+
+from bench.cli import cli, main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(capsys, *argv) -> str:
+    rc = main(list(argv))
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    return out.out
+
+
+@pytest.mark.parametrize("command", sorted(cli.commands))
+def test_help(capsys, command):
+    assert "Usage" in run(capsys, command, "--help")
+
+
+def test_evaluate_json_plot_vtk(capsys, tmp_path):
+    out = run(capsys, "evaluate", "fan_small", "--task", "1", "--layout", "0,28,56", "--json",
+              "--plot", str(tmp_path / "f.png"), "--vtk", str(tmp_path / "f.vtu"))
+    res = json.loads(out)
+    for key in ("max_ux", "max_uy", "max_w", "max_u", "reward_gaussian", "reward_bell"):
+        assert key in res
+    assert res["samples"] == 1 and res["max_u"] > 0
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    mesh = meshio.read(tmp_path / "f.vtu")
+    assert mesh.point_data["displacement"].shape[1] == 3
+
+
+def test_validate_json(capsys):
+    checks = json.loads(run(capsys, "validate", "--json"))
+    assert len(checks) >= 6
+    for c in checks:
+        assert {"name", "computed", "reference", "rel_error"} <= set(c)
+        assert c["rel_error"] <= 0.01
+
+
+def test_cases_json(capsys):
+    rows = {r["case"]: r for r in json.loads(run(capsys, "cases", "--json"))}
+    assert rows["wing_panel"]["candidates"] == 3333
+    assert rows["wing_panel_small"]["joint_size"] <= 10**7
+    assert all(r["dofs"] > 0 for r in rows.values())
+
+
+def test_show(capsys, tmp_path):
+    run(capsys, "show", "fan", "--out", str(tmp_path / "fan.png"))
+    assert (tmp_path / "fan.png").stat().st_size > 5000
+
+
+def test_perf_json(capsys):
+    res = json.loads(run(capsys, "perf", "--case", "fan_small", "--batch", "2000", "--json"))
+    for key in ("single_speedup", "batched_layouts_per_s", "precompute_s", "peak_rss_mb"):
+        assert res[key] > 0
+
+
+def test_solve_json(capsys):
+    res = json.loads(run(capsys, "solve", "fan_small", "--planner", "random", "--budget", "60",
+                         "--seed", "3", "--json"))
+    assert res["samples"] == 60 and res["planner"] == "random" and res["case"] == "fan_small"
+    assert len(res["per_task"]) == 6
+    assert {"task", "layout", "max_deformation_m", "reward"} <= set(res["per_task"][0])
+    assert res["mean_max_deformation_m"] > 0
+
+
+def test_example_plugin_installs_and_runs(tmp_path):
+    """README's plugin example: a separate package, found through its entry point."""
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--target", str(target), str(ROOT / "examples" / "fixbench-plugin-example")],
+                   check=True, capture_output=True)
+    env = {"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"}
+    listed = subprocess.run([sys.executable, "-m", "bench.cli", "solvers"], capture_output=True,
+                            text=True, env=env, cwd=ROOT)
+    assert "near-load" in listed.stdout, listed.stderr
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "solve", "fan_small", "--planner", "near-load",
+                           "--set", "offset_mm=20", "--json"], capture_output=True, text=True, env=env,
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout)
+    assert res["planner"] == "near-load" and res["samples"] == 0

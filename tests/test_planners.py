@@ -1,0 +1,91 @@
+"""Every registered planner, through the same checks (issue: planner plugin API).
+
+Valid layouts (one candidate per agent from its own set), the budget never exceeded and the
+samples counted exactly, same seed -> same result, and a budget too small for the method gives a
+clear error or a documented best effort: never a crash.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cases import FixbenchError, load_case_spec
+from cases.problem import Problem
+from solvers import PlannerError, available, get, register
+from solvers.random_search import RandomSearch
+
+BUDGET = 50_000  # covers exact enumeration of the problem below (21,952 layouts x 2 tasks)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return Problem(load_case_spec("fan_small").with_tasks([0, 5]))
+
+
+def _quick(name):
+    """The planner with settings that keep the test quick (documented config fields only)."""
+    cls = get(name)
+    quick = {"nashq": {"episodes": 3}, "iql": {"episodes": 3}}.get(name, {})
+    return cls(**quick)
+
+
+@pytest.mark.parametrize("name", sorted(available()))
+def test_planner_contract(problem, name):
+    first = _quick(name).solve(problem, BUDGET, seed=11)
+    assert first.layouts.shape == (problem.n_tasks, problem.n_agents)
+    for a, allowed in enumerate(problem.action_sets):
+        assert np.isin(first.layouts[:, a], allowed).all()
+    assert 0 <= first.samples <= BUDGET
+    assert first.trace.shape[1] == 3 and (first.trace[:, 1] <= first.samples).all()
+    assert np.all(first.max_deformation > 0)
+    again = _quick(name).solve(problem, BUDGET, seed=11)
+    np.testing.assert_array_equal(first.layouts, again.layouts)
+    assert first.samples == again.samples
+
+
+@pytest.mark.parametrize("name", sorted(available()))
+def test_budget_too_small(problem, name):
+    try:
+        result = _quick(name).solve(problem, 1, seed=0)
+    except FixbenchError as exc:  # a clear, one-line error
+        assert "\n" not in str(exc) and str(exc)
+    else:  # a documented best effort within the budget
+        assert result.samples <= 1
+
+
+@pytest.mark.parametrize("name", sorted(n for n, c in available().items() if "shared" in c.modes))
+def test_shared_mode(problem, name):
+    result = _quick(name).solve(problem, BUDGET, seed=2, mode="shared")
+    assert (result.layouts == result.layouts[0]).all()
+    assert result.samples <= BUDGET
+
+
+def test_registry_refuses_a_taken_name():
+    class Impostor(RandomSearch):
+        name = "random"
+
+    with pytest.raises(PlannerError, match="'random' is taken"):
+        register(Impostor)
+
+
+def test_every_planner_is_documented():
+    """A one-line description, and a docstring under every config field (cleanrl style)."""
+    for name, cls in available().items():
+        assert cls.description and "\n" not in cls.description, name
+        for field in cls.Config.__dataclass_fields__:
+            assert _has_field_doc(cls.Config, field), (name, field)
+
+
+def _has_field_doc(config_cls, field: str) -> bool:
+    """A docstring right under the field's line in the class (or a base class) that defines it."""
+    import inspect
+
+    for klass in config_cls.__mro__:
+        if field not in getattr(klass, "__annotations__", {}):
+            continue
+        lines = inspect.getsource(klass).splitlines()
+        for i, line in enumerate(lines[:-1]):
+            if line.strip().startswith(f"{field}:"):
+                return lines[i + 1].strip().startswith(('"""', "r\"\"\""))
+    return False
