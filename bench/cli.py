@@ -191,6 +191,27 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_jso
             click.echo(f"{k:>24}: {v:.6g}" if isinstance(v, float) else f"{k:>24}: {v}")
 
 
+@cli.command()
+@click.argument("matrix", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Run directory (created; rerunning resumes).")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), help="Parallel workers (default: one per core).")
+@click.option("--ray-address", help="Address of an existing Ray cluster (default: start a local one).")
+@click.option("--cell-timeout", type=click.FloatRange(min=0, min_open=True),
+              help="Stop a cell after this many seconds; it becomes a row with an error.")
+@click.option("--retry-failed", is_flag=True, help="Rerun cells whose row carries an error.")
+def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed) -> None:
+    """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
+    from bench.runner import run_matrix
+
+    summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
+                         cell_timeout=cell_timeout, retry_failed=retry_failed,
+                         progress=sys.stderr.isatty())
+    click.echo(f"{summary['cells']} cells: {summary['run']} run ({summary['failed']} failed), "
+               f"{summary['skipped']} already done; results in {out}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

@@ -94,10 +94,10 @@ def anytime_plot(result, out: Path) -> Path:
     trace = result.trace
     for task in np.unique(trace[:, 0])[:20]:
         rows = trace[trace[:, 0] == task]
-        ax.step(rows[:, 1], rows[:, 2] * 1e6, where="post", lw=0.8,
+        ax.step(rows[:, 1], rows[:, 3] * 1e6, where="post", lw=0.8,
                 label="shared (worst task)" if task < 0 else None)
     ax.set_xscale("log")
-    ax.set_xlabel("samples spent")
+    ax.set_xlabel("samples spent on the task")
     ax.set_ylabel("best max |u| so far (um)")
     ax.set_title(f"{result.planner} on {result.case} ({result.mode}, seed {result.seed})", fontsize=9)
     return _save(fig, out)

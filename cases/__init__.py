@@ -7,9 +7,10 @@ from cases.errors import BudgetExhausted, CaseError, FixbenchError, NumericalErr
 from cases.materials import MATERIALS, Material
 from cases.problem import Deformation, Evaluator, Problem, load_problem
 from cases.spec import CaseSpec, case_names, load_case_spec
+from cases.env import FixtureEnv, make_env
 
 __all__ = [
     "BudgetExhausted", "CaseError", "CaseSpec", "Deformation", "Evaluator", "FixbenchError",
     "MATERIALS", "Material", "NumericalError", "Problem", "case_names", "load_case_spec",
-    "load_problem",
+    "load_problem", "FixtureEnv", "make_env",
 ]

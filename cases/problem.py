@@ -176,15 +176,6 @@ class Evaluator:
         return self.problem.oracle.compliance(field, cand)
 
     def unconstrained(self, field: str, task: int) -> tuple[np.ndarray, np.ndarray]:
-        """Unconstrained response of ``task`` in ``field``: (d0 = B u0, m0 = P u0); one sample."""
-        task = self.problem.check_task(task)
-        fo = self.problem.oracle.fields.get(field)
-        if fo is None:
-            raise CaseError(self.problem.spec.source, "field", f"'{field}' is not active in this case")
-        self.charge(1)
-        return fo.d0[task].copy(), fo.m0[task].copy()
-
-    def unconstrained(self, field: str, task: int) -> tuple[np.ndarray, np.ndarray]:
         """Free response of ``task`` in ``field`` (base supports only): (d0, m0).
 
         d0 = B u0 holds every candidate's constraint rows (the pads' mean held components), m0 = P u0

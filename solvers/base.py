@@ -49,25 +49,29 @@ class PlannerConfig:
 class TracedEvaluator(Evaluator):
     """A counted evaluator that also records the anytime trace and the best layout per task.
 
-    Trace rows are ``(task, samples, best)``: after the planner had spent ``samples`` in total, the
-    best max deformation it had seen on ``task`` was ``best``. Shared mode records task -1 with the
-    worst-over-tasks objective.
+    Trace rows are ``(task, task_samples, samples, best)``: after the planner had spent
+    ``task_samples`` on ``task`` (``samples`` in total), the best max deformation it had seen on
+    ``task`` was ``best``. Shared mode adds rows with task -1 and the worst-over-tasks objective.
     """
+
+    TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
 
     def __init__(self, problem: Problem, budget: int | None):
         super().__init__(problem, budget)
+        self.task_samples = np.zeros(problem.n_tasks, dtype=np.int64)
         self.best = np.full(problem.n_tasks, np.inf)
         self.best_layout = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
         self.shared_best, self.shared_layout = np.inf, None
-        self.trace: list[tuple[int, int, float]] = []
+        self.trace: list[tuple[int, int, int, float]] = []
 
     def evaluate(self, task: int, layouts) -> Deformation:
         d = super().evaluate(task, layouts)
+        self.task_samples[task] += len(d.max_u)
         i = int(np.argmin(d.max_u))
         if d.max_u[i] < self.best[task]:
             self.best[task] = d.max_u[i]
             self.best_layout[task] = np.atleast_2d(layouts)[i]
-        self.trace.append((int(task), self.samples, float(self.best[task])))
+        self.trace.append((int(task), int(self.task_samples[task]), self.samples, float(self.best[task])))
         return d
 
     def evaluate_shared(self, layouts) -> np.ndarray:
@@ -80,7 +84,7 @@ class TracedEvaluator(Evaluator):
         i = int(np.argmin(worst))
         if worst[i] < self.shared_best:
             self.shared_best, self.shared_layout = float(worst[i]), layouts[i].copy()
-        self.trace.append((-1, self.samples, self.shared_best))
+        self.trace.append((-1, self.samples, self.samples, self.shared_best))
         return worst
 
 
@@ -100,8 +104,9 @@ class PlanResult:
     layouts: np.ndarray  # (n_tasks, n_agents) global candidate indices
     max_deformation: np.ndarray  # (n_tasks,) metres, max |u| of each task's layout
     reward: np.ndarray  # (n_tasks,) Gaussian reward of each task's layout
-    trace: np.ndarray  # (rows, 3): task, samples, best-so-far
+    trace: np.ndarray  # (rows, 4): TracedEvaluator.TRACE_COLUMNS
     info: dict = field(default_factory=dict)  # planner-specific figures (gaps, iterations, ...)
+    reward_bell: np.ndarray | None = None  # (n_tasks,) the reference code's bell reward
 
     @property
     def objective(self) -> float:
@@ -158,8 +163,8 @@ class Planner(ABC):
         scored = problem.deformation(maxima)
         return PlanResult(self.name, _config_dict(self.config), self.config.hash(), problem.name,
                           problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
-                          scored.max_u, scored.reward_gaussian, np.array(ev.trace, dtype=float).reshape(-1, 3),
-                          info)
+                          scored.max_u, scored.reward_gaussian,
+                          np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell)
 
 
 def _config_dict(config: PlannerConfig) -> dict:

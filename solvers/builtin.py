@@ -2,3 +2,6 @@
 
 from solvers import random_search  # noqa: F401
 from solvers import evolutionary  # noqa: F401
+from solvers import exact, greedy  # noqa: F401
+from solvers import nashq  # noqa: F401
+from solvers import cbr, qp  # noqa: F401

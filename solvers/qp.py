@@ -10,31 +10,37 @@ What the planner reads, and what it pays (through the counted evaluator only):
 - the unconstrained response of each task, ``ev.unconstrained(field, task)`` = (d0, m0): one sample
   per field and task.
 
-Formulation. For one field with candidate rows r, the measured field under constraint forces
-lambda (one per row) is ``u = m0 - H^T lambda``. A layout's true reactions are one particular
-lambda supported on its pads' rows, so the least-squares problem below, with lambda restricted to
-a layout's rows, is a lower bound on that layout's ||u||^2 (the objective surrogate: the L2 norm of
-the measured field rather than its maximum). The combinatorial choice "one pad per agent" is
-relaxed to weights ``w_j >= 0`` with ``sum_{j in agent a} w_j = 1`` and ``|lambda_r| <= M_f w_j``
-for each row r of candidate j (a big-M coupling; per agent it amounts to an L1/Linf group-lasso
-budget ``sum_j max_r |lambda_r| <= M_f``, which favours few pads). With ``lambda = M_f mu``::
+Formulation. For one field, with constraint forces lambda at every candidate row (C = B K^-1 B^T,
+H = P K^-1 B^T, d0 = B u0, m0 = P u0 as in :mod:`cases.oracle`), a layout S's true reactions are
+the minimiser of the complementary energy ``1/2 lambda^T C lambda - d0^T lambda`` over lambda
+supported on S's rows (its value, ``-1/2 d0_S^T C_SS^-1 d0_S``, is minus half the drop in load
+work: the classic fixture-stiffness objective), and its measured field is ``m0 - H^T lambda``.
+The choice "one pad per agent" is relaxed to weights ``w_j >= 0`` with
+``sum_{j in agent a} w_j = 1`` and ``|lambda_r| <= g_f w_j`` for each row r of candidate j (a
+big-M coupling; per agent it is an L1/Linf group-lasso budget ``sum_j max_r |lambda_r| <= g_f``
+that favours few pads). With ``lambda = g_f mu``::
 
-    minimise   sum_t  sum_f ||R_f M_f mu_{f,t} - Q_f^T m0_{f,t}||^2 / ||m0_t||^2  +  ridge ||mu||^2
+    minimise   sum_t sum_f [ (1/2 g^2 mu^T C mu - g d0^T mu) / E0_t
+                             + field_weight ||g R mu - Q^T m0||^2 / ||m0_t||^2 ]  +  ridge ||mu||^2
     subject to -w_{j(r)} <= mu_{f,t,r} <= w_{j(r)},  w >= 0,  sum_{j in a} w_j = 1 for every agent a
 
-where ``H_f^T = Q_f R_f`` is a thin QR (so the QP has rows x rows data, not measurement points x
-rows), ``M_f`` is ``big_m`` times the largest single-pad reaction ``|C_jj^-1 d0_j|`` of the field,
-and t runs over one task (per-task mode: one QP per task, the compliance data read once) or over
-all tasks (shared mode: one QP, one mu per task, shared weights w). It is a convex QP (PSD
-quadratic, linear constraints), solved with OSQP. The problem is solved for each scale in
-``m_scales`` (a small continuation in M: small M forces sparse weights, large M lets the forces
-cancel the load); a candidate's score is its weight summed over the scales.
+``H^T = Q R`` is a thin QR (the QP holds rows x rows data, not measurement points x rows); the
+second term is the L2 norm of the measured field (a smooth surrogate of its maximum). ``E0_t`` is
+the best single-pad energy drop of task t and ``g_f = scale * big_m *`` the largest single-pad
+reaction ``|C_jj^-1 d0_j|`` of the field. t runs over one task (per-task mode: one QP per task, the
+compliance read once) or every task (shared mode: one QP, one mu per task, shared w). The
+quadratic is PSD and the constraints linear: a convex QP, solved with OSQP, once for each
+``scale`` in ``m_scales`` (small scales force sparse supports, large ones let forces spread).
 
-Rounding and polish. Each agent takes its highest-scoring candidate (no sample). Polish (counted)
-is coordinate descent over each agent's ``pool`` best-scoring candidates: evaluate the rounded
-layout, then, agent by agent, every swap to another pool candidate, keep the best, until a sweep
-brings no gain or ``polish_samples`` (per task; shared mode: per layout-on-every-task evaluation,
-n_tasks samples each) are spent. ``polish_samples=0`` returns the rounded layout unevaluated.
+Rounding and polish. A candidate's mass is its largest ``|mu|`` (summed over fields and tasks,
+each solve normalised to total 1, summed over the scales). Weights are a poor guide (with a slack
+budget they are not unique), and relaxed forces spread over neighbouring pads, so each agent
+takes the candidate of its set nearest to the mass-weighted centroid of its pads (no sample), and
+its ``pool`` nearest candidates to that centroid are what polishing may swap in. Polish (counted)
+is coordinate descent: evaluate the rounded layout, then, agent by agent, every swap to an
+unseen pool candidate, keep the best, until a sweep brings no gain or ``polish_samples`` (per
+task; in shared mode each layout is judged on every task, n_tasks samples) are spent.
+``polish_samples=0`` returns the rounded layout unevaluated.
 
 Sizes and limits. The QP has ``n_rows * n_tasks_in_qp + n_candidates`` variables; on the small
 cases (at most 300 rows) each solve takes well under a second. On the full cases the compliance
@@ -52,7 +58,7 @@ import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
 
-from cases.errors import CaseError
+from cases.errors import BudgetExhausted, CaseError
 from cases.problem import Problem
 from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
 from solvers.registry import register
@@ -62,17 +68,20 @@ FIELDS = ("bending", "membrane")
 
 @dataclass(frozen=True)
 class QPConfig(PlannerConfig):
-    big_m: float = 2.0
-    """Force bound M_f as a multiple of the field's largest single-pad reaction."""
+    big_m: float = 1.0
+    """Force scale g_f as a multiple of the field's largest single-pad reaction."""
 
-    m_scales: tuple[float, ...] = (0.25, 0.5, 1.0)
-    """Continuation: the QP is solved with M_f times each of these; weights are summed over them."""
+    m_scales: tuple[float, ...] = (0.3, 1.0)
+    """Continuation: the QP is solved with g_f times each of these; masses are summed over them."""
+
+    field_weight: float = 1.0
+    """Weight of the measured-field L2 term against the energy term."""
 
     ridge: float = 1e-6
     """Ridge weight on the scaled forces mu (keeps the QP strictly convex in mu)."""
 
     pool: int = 5
-    """Candidates per agent (best scores first) that polishing may swap in."""
+    """Candidates per agent (nearest to its force centroid first) that polishing may swap in."""
 
     polish_samples: int = 40
     """Counted evaluations per task for polishing (shared mode: layouts judged on every task)."""
@@ -114,13 +123,13 @@ class QPPlanner(Planner):
                 "unconstrained_samples": per_call * problem.n_tasks, "candidates_read": len(cand),
                 "qp_status": []}
         if mode == "shared":
-            scores = qp.scores([resp[t] for t in tasks], info)
-            layout = polish(problem, ev, sets, cand, scores, cfg, None)
+            mass = qp.masses([resp[t] for t in tasks], info)
+            layout = polish(problem, ev, sets, cand, mass, cfg, None)
             return np.tile(layout, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
         for t in tasks:
-            scores = qp.scores([resp[t]], info)
-            layouts[t] = polish(problem, ev, sets, cand, scores, cfg, t)
+            mass = qp.masses([resp[t]], info)
+            layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t)
         return layouts, info
 
 
@@ -142,7 +151,8 @@ def screened_sets(problem: Problem, limit: int) -> list[np.ndarray]:
                                                     .astype(np.int64))] for a in problem.action_sets]
 
 
-def read_compliance(name: str, problem: Problem, ev: TracedEvaluator, cand: np.ndarray) -> dict[str, FieldData]:
+def read_compliance(name: str, problem: Problem, ev: TracedEvaluator,
+                    cand: np.ndarray) -> dict[str, FieldData]:
     """Counted reads of C and H for sorted candidates, for each field the evaluator serves."""
     data = {}
     for f in FIELDS:
@@ -150,6 +160,9 @@ def read_compliance(name: str, problem: Problem, ev: TracedEvaluator, cand: np.n
             C, H = ev.compliance(f, cand)
         except CaseError:  # the field is not active in this case (refused before any charge)
             continue
+        except BudgetExhausted as exc:
+            raise PlannerError(f"planner '{name}': budget too small to read the compliance data "
+                               f"of {len(cand)} candidates ({exc})") from None
         per = H.shape[0] // len(cand)
         cols = (cand[:, None] * per + np.arange(per)).ravel()
         data[f] = FieldData(per, cols, C[:, cols], H)
@@ -163,89 +176,126 @@ class RelaxedQP:
 
     def __init__(self, data: dict[str, FieldData], pos: np.ndarray, groups: np.ndarray, n_cand: int,
                  cfg: QPConfig, n_copies: int):
-        self.data, self.cfg = data, cfg
+        self.data, self.cfg, self.pos = data, cfg, pos
         self.w = cp.Variable(n_cand, nonneg=True)
         cons = [sp.csr_matrix((np.ones(n_cand), (groups, np.arange(n_cand)))) @ self.w == 1]
         obj = 0
-        self.Q, self.target, self.gain = {}, {}, {}
+        self.Q, self.mu, self.par = {}, {}, {}
         for f, d in data.items():
             Q, R = np.linalg.qr(d.H.T)
+            e, V = np.linalg.eigh(d.C)
+            L = V * np.sqrt(np.clip(e, 0.0, None))  # C = L L^T (C is PSD; round-off clipped)
             self.Q[f] = Q
             # data row r belongs to the candidate in sorted column r // per, i.e. to cand[k] with
             # pos[k] == r // per: E maps the weights (in `cand` order) to rows
             rows = (pos[:, None] * d.per + np.arange(d.per)).ravel()
             E = sp.csr_matrix((np.ones(len(rows)), (rows, np.repeat(np.arange(n_cand), d.per))),
                               shape=(len(rows), n_cand))
-            self.target[f], self.gain[f] = [], []
+            self.mu[f], self.par[f] = [], []
             for _ in range(n_copies):
                 mu = cp.Variable(len(rows))
-                q, g = cp.Parameter(R.shape[0]), cp.Parameter(nonneg=True)
-                self.target[f].append(q)
-                self.gain[f].append(g)
-                obj = obj + cp.sum_squares(g * (R @ mu) - q) + cfg.ridge * cp.sum_squares(mu)
+                # a = g^2 / E0, b = g d0 / E0, c = g / ||m0||, q = Q^T m0 / ||m0|| (g = force scale)
+                a, c = cp.Parameter(nonneg=True), cp.Parameter(nonneg=True)
+                b, q = cp.Parameter(len(rows)), cp.Parameter(R.shape[0])
+                self.mu[f].append(mu)
+                self.par[f].append((a, b, c, q))
+                obj = (obj + 0.5 * a * cp.sum_squares(L.T @ mu) - b @ mu
+                       + cfg.field_weight * cp.sum_squares(c * (R @ mu) - q) + cfg.ridge * cp.sum_squares(mu))
                 cons += [mu <= E @ self.w, -mu <= E @ self.w]
         self.problem = cp.Problem(cp.Minimize(obj), cons)
 
-    def scores(self, responses: list[dict[str, tuple[np.ndarray, np.ndarray]]], info: dict) -> np.ndarray:
-        """Weights summed over the continuation scales, for each task's (d0, m0) per field.
+    def masses(self, responses: list[dict[str, tuple[np.ndarray, np.ndarray]]], info: dict) -> np.ndarray:
+        """Each candidate's force mass (its largest |mu| row, summed over fields, tasks and scales).
 
-        Each task's objective is divided by ||m0_t||^2: targets and forces are scaled by 1/||m0_t||.
+        ``responses`` holds each task's (d0, m0) per field. Each task's energy term is divided by
+        its best single-pad energy reduction E0_t (summed over fields), its field term by
+        ||m0_t||^2, so every task weighs alike.
         """
+        red, lam = [], {f: 0.0 for f in self.data}
+        for r in responses:
+            e0 = 0.0
+            for f, d in self.data.items():
+                rj, lj = single_pad(d, r[f][0][d.cols])
+                e0 += rj
+                lam[f] = max(lam[f], lj)
+            red.append(e0 or 1.0)
         norm = [np.sqrt(sum(np.sum(m0**2) for _, m0 in r.values())) or 1.0 for r in responses]
-        reaction = {f: [single_pad_reaction(d, r[f][0][d.cols]) for r in responses] for f, d in self.data.items()}
-        for f in self.data:
-            for q, r, n in zip(self.target[f], responses, norm):
-                q.value = self.Q[f].T @ r[f][1] / n
         total = np.zeros(self.w.size)
         for s in self.cfg.m_scales:
-            for f in self.data:
-                for g, lam, n in zip(self.gain[f], reaction[f], norm):
-                    g.value = s * self.cfg.big_m * lam / n
+            for f, d in self.data.items():
+                g = s * self.cfg.big_m * (lam[f] or 1.0)
+                for (a, b, c, q), r, e0, n in zip(self.par[f], responses, red, norm):
+                    a.value, b.value = g * g / e0, g * r[f][0][d.cols] / e0
+                    c.value, q.value = g / n, self.Q[f].T @ r[f][1] / n
             self.problem.solve(solver=cp.OSQP, eps_abs=self.cfg.eps, eps_rel=self.cfg.eps,
                                max_iter=self.cfg.max_iter, warm_start=True)
             info["qp_status"].append(self.problem.status)
-            if self.w.value is not None:
-                total += np.clip(self.w.value, 0.0, None)
+            if self.w.value is None:
+                continue
+            mass = np.zeros(self.w.size)
+            for f, d in self.data.items():
+                for mu in self.mu[f]:
+                    # rows are in sorted-candidate order; self.w is in `cand` order
+                    mass += np.abs(mu.value).reshape(-1, d.per).max(axis=1)[self.pos]
+            total += mass / (mass.sum() or 1.0)
         return total
 
 
-def single_pad_reaction(d: FieldData, d0: np.ndarray) -> float:
-    """Largest reaction |C_jj^-1 d0_j| of any one pad held alone (sets the force scale M_f)."""
-    n = d.C.shape[0] // d.per
-    return max(float(np.abs(np.linalg.solve(d.C[j * d.per:(j + 1) * d.per, j * d.per:(j + 1) * d.per],
-                                            d0[j * d.per:(j + 1) * d.per])).max()) for j in range(n))
+def single_pad(d: FieldData, d0: np.ndarray) -> tuple[float, float]:
+    """Largest energy reduction d0_j C_jj^-1 d0_j and largest reaction |C_jj^-1 d0_j| of one pad."""
+    best_red, best_lam = 0.0, 0.0
+    for j in range(d.C.shape[0] // d.per):
+        s = slice(j * d.per, (j + 1) * d.per)
+        lam = np.linalg.solve(d.C[s, s], d0[s])
+        best_red, best_lam = max(best_red, float(d0[s] @ lam)), max(best_lam, float(np.abs(lam).max()))
+    return best_red, best_lam
 
 
 def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: np.ndarray,
-           scores: np.ndarray, cfg: QPConfig, task: int | None) -> np.ndarray:
-    """Round (best score per agent), then coordinate descent over the pools (see module docstring)."""
+           mass: np.ndarray, cfg: QPConfig, task: int | None) -> np.ndarray:
+    """Round to the force centroids, then coordinate descent over the pools (module docstring)."""
+    xy = problem.candidates
     offsets = np.cumsum([0] + [len(s) for s in sets])
     pools = []
     for a, s in enumerate(sets):
-        sc = scores[offsets[a]:offsets[a + 1]]
-        pools.append(cand[offsets[a]:offsets[a + 1]][np.argsort(-sc, kind="stable")[:max(cfg.pool, 1)]])
+        m = mass[offsets[a]:offsets[a + 1]]
+        centre = m @ xy[s] / m.sum() if m.sum() > 0 else xy[s].mean(axis=0)
+        dist = np.sum((xy[s] - centre) ** 2, axis=1)
+        pools.append(s[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
     layout = np.array([p[0] for p in pools], dtype=np.int64)
     cost = problem.n_tasks if task is None else 1
-    budget = min(cfg.polish_samples, int(min(ev.remaining, 1e18) // cost))
-    if budget < 1:
-        return layout
+    return coordinate_descent(problem, ev, layout, pools, int(min(cfg.polish_samples, ev.remaining // cost)),
+                              task, {})
 
-    seen: dict[tuple, float] = {}
+
+def coordinate_descent(problem: Problem, ev: TracedEvaluator, layout: np.ndarray, pools: list[np.ndarray],
+                       budget: int, task: int | None, known: dict[tuple, float]) -> np.ndarray:
+    """Counted polish: agent by agent, try every unseen swap to a pool candidate; keep the best.
+
+    ``budget`` counts layouts (each costs one sample, n_tasks in shared mode: ``task`` None);
+    ``known`` maps layouts already evaluated to their values (the start is evaluated if it is not).
+    Stops when a sweep over the agents brings no gain or the budget is spent.
+    """
 
     def judge(layouts: np.ndarray) -> np.ndarray:
         vals = ev.evaluate_shared(layouts) if task is None else ev.evaluate(task, layouts).max_u
-        seen.update(zip(map(tuple, layouts.tolist()), vals.tolist()))
+        known.update(zip(map(tuple, layouts.tolist()), vals.tolist()))
         return vals
 
-    best = judge(layout[None, :])[0]
-    budget -= 1
+    layout = np.asarray(layout, dtype=np.int64)
+    if tuple(layout.tolist()) not in known:
+        if budget < 1:
+            return layout
+        judge(layout[None, :])
+        budget -= 1
+    best = known[tuple(layout.tolist())]
     improved = True
     while improved and budget > 0:
         improved = False
         for a, p in enumerate(pools):
             trial = np.tile(layout, (len(p), 1))
             trial[:, a] = p
-            trial = np.array([x for x in trial.tolist() if tuple(x) not in seen][:budget], dtype=np.int64)
+            trial = np.array([x for x in trial.tolist() if tuple(x) not in known][:budget], dtype=np.int64)
             if len(trial) == 0:
                 continue
             vals = judge(trial)

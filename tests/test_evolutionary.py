@@ -8,9 +8,14 @@ import pytest
 from cases import load_case_spec, load_problem
 from cases.problem import Problem
 from solvers.base import PlannerError
-from solvers.registry import get
+from solvers.evolutionary import GeneticPlanner, SwarmPlanner
+from solvers.random_search import RandomSearch
 
-PLANNERS = ("ga", "pso")
+PLANNERS = {"ga": GeneticPlanner, "pso": SwarmPlanner}
+
+
+def get(name):
+    return {"random": RandomSearch, **PLANNERS}[name]
 
 
 @pytest.fixture(scope="module")

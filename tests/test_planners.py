@@ -37,7 +37,7 @@ def test_planner_contract(problem, name):
     for a, allowed in enumerate(problem.action_sets):
         assert np.isin(first.layouts[:, a], allowed).all()
     assert 0 <= first.samples <= BUDGET
-    assert first.trace.shape[1] == 3 and (first.trace[:, 1] <= first.samples).all()
+    assert first.trace.shape[1] == 4 and (first.trace[:, 2] <= first.samples).all()
     assert np.all(first.max_deformation > 0)
     again = _quick(name).solve(problem, BUDGET, seed=11)
     np.testing.assert_array_equal(first.layouts, again.layouts)

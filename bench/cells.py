@@ -1,0 +1,171 @@
+"""What a worker runs: regret references and matrix cells (no file I/O; results go back to the driver).
+
+Problems are cached per process, so a worker that runs many cells of one case builds its FE model
+and oracle once.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import time
+import traceback
+
+import numpy as np
+import pandas as pd
+
+from bench.matrix import Cell, task_subset
+from cases.problem import Problem
+from cases.spec import load_case_spec
+
+_PROBLEMS: dict[tuple, Problem] = {}
+REFERENCE_OPTIMAL_REWARD = 0.7854  # the reference code's stand-in for the optimal step reward (~pi/4)
+
+
+def fixbench_version() -> str:
+    try:
+        return importlib.metadata.version("fixbench")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - running from a checkout
+        return "unknown"
+
+
+def problem_for(case: str, material: str | None, agents: int | None, tasks: int | None) -> Problem:
+    key = (case, material, agents, tasks)
+    if key not in _PROBLEMS:
+        spec = load_case_spec(case, material, agents)
+        spec = spec.with_tasks(task_subset(len(spec.tasks), tasks))
+        _PROBLEMS[key] = Problem(spec)
+    return _PROBLEMS[key]
+
+
+def reference_key(case: str, material: str | None, agents: int | None, tasks: int | None) -> str:
+    return f"{case}__{material or 'default'}__a{agents or 'default'}__t{tasks or 'all'}"
+
+
+def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
+                      modes: tuple[str, ...]) -> dict:
+    """The regret reference of a problem: the ``exact`` planner's optimum (proven or best known)."""
+    from solvers.registry import get
+
+    p = problem_for(case, material, agents, tasks)
+    ref = {"key": reference_key(case, material, agents, tasks), "case": case, "material":
+           p.spec.material.name, "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "",
+           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0}
+    t0 = time.perf_counter()
+    try:
+        exact = get("exact")()
+        res = exact.solve(p, None, seed=0, mode="per-task")
+        ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(),
+                   proven=bool(res.info.get("proven", False)), gap=res.info.get("gap"),
+                   method=res.info.get("method"), samples=res.samples)
+        if "shared" in modes:
+            shared = exact.solve(p, None, seed=0, mode="shared")
+            ref["shared"] = shared.objective
+            ref["proven"] = ref["proven"] and bool(shared.info.get("proven", False))
+    except Exception as exc:  # a failing reference is recorded, never a crash of the matrix
+        ref["error"] = f"{type(exc).__name__}: {exc}"
+    ref["wall_s"] = time.perf_counter() - t0
+    return ref
+
+
+def _samples_to(trace: np.ndarray, task: int, target: float) -> float:
+    rows = trace[(trace[:, 0] == task) & (trace[:, 3] <= target)]
+    return float(rows[0, 1]) if len(rows) else math.nan
+
+
+def metrics(result, reference: dict | None) -> dict:
+    """Regret and runtime-to-target figures of one result against its reference."""
+    n_agents = result.layouts.shape[1]
+    bell = result.reward_bell if result.reward_bell is not None else np.zeros(len(result.layouts))
+    out = {"reference_regret": float(n_agents * len(result.layouts) * REFERENCE_OPTIMAL_REWARD
+                                     - n_agents * bell.sum())}
+    nan = {k: math.nan for k in ("reference_objective_m", "true_regret_m", "relative_regret",
+                                 "samples_to_1pct", "samples_to_5pct", "success_1pct", "success_5pct")}
+    out.update(nan, reference_proven=False)
+    if not reference or reference.get("per_task") is None:
+        return out
+    opt = np.asarray(reference["per_task"])
+    shared = result.mode == "shared"
+    if shared and reference.get("shared") is None:
+        return out
+    ref_obj = reference["shared"] if shared else float(opt.mean())
+    out.update(reference_objective_m=ref_obj, reference_proven=bool(reference["proven"]),
+               true_regret_m=result.objective - ref_obj, relative_regret=result.objective / ref_obj - 1)
+    for pct, eps in (("1pct", 0.01), ("5pct", 0.05)):
+        if shared:
+            reach = [_samples_to(result.trace, -1, ref_obj * (1 + eps))]
+            success = float(result.objective <= ref_obj * (1 + eps))
+        else:
+            reach = [_samples_to(result.trace, t, opt[t] * (1 + eps)) for t in range(len(opt))]
+            success = float(np.mean(result.max_deformation <= opt * (1 + eps)))
+        reached = [r for r in reach if not math.isnan(r)]
+        out[f"samples_to_{pct}"] = float(np.mean(reached)) if reached else math.nan
+        out[f"success_{pct}"] = success
+    return out
+
+
+def base_row(cell: Cell) -> dict:
+    return {"schema": 1, "cell": cell.id, "planner": cell.planner, "config": json.dumps(dict(cell.config)),
+            "case": cell.case, "agents": cell.agents, "mode": cell.mode,
+            "budget": math.nan if cell.budget is None else cell.budget, "seed": cell.seed,
+            "material": cell.material, "version": fixbench_version(), "error": ""}
+
+
+def run_cell(cell: Cell, reference: dict | None) -> dict:
+    """Run one cell; returns {"row": ..., "trace": records, "curves": records}. Never raises."""
+    from solvers.registry import get
+
+    row = base_row(cell)
+    t0, c0 = time.perf_counter(), time.process_time()
+    trace = curves = None
+    try:
+        p = problem_for(cell.case, cell.material, cell.agents, cell.tasks)
+        planner = get(cell.planner)(**dict(cell.config))
+        res = planner.solve(p, cell.budget, seed=cell.seed, mode=cell.mode)
+        row.update(config_hash=res.config_hash, part=p.spec.part, material=res.material,
+                   agents=p.n_agents, n_tasks=p.n_tasks, samples=res.samples,
+                   mean_max_deformation_m=float(res.max_deformation.mean()),
+                   worst_max_deformation_m=float(res.max_deformation.max()),
+                   best_max_deformation_m=float(res.max_deformation.min()),
+                   objective_m=res.objective, mean_reward=float(res.reward.mean()),
+                   mean_reward_bell=float(res.reward_bell.mean()),
+                   info=json.dumps({k: v for k, v in res.info.items() if not _is_curve(v)}, default=str),
+                   **metrics(res, reference))
+        trace = pd.DataFrame(res.trace, columns=["task", "task_samples", "samples", "best"]).to_dict("list")
+        curves = _curves(res.info)
+    except Exception as exc:  # a failing run is a row with its error, not a crash of the matrix
+        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        row["info"] = json.dumps({"traceback": traceback.format_exc(limit=4)})
+    row["wall_s"] = time.perf_counter() - t0
+    row["cpu_s"] = time.process_time() - c0
+    return {"row": row, "trace": trace, "curves": curves}
+
+
+def _is_curve(v) -> bool:
+    return isinstance(v, (list, tuple, np.ndarray)) and len(v) > 1 and all(
+        isinstance(x, (int, float, np.floating, np.integer)) for x in np.asarray(v, dtype=object).ravel()[:50])
+
+
+def _curves(info: dict) -> dict | None:
+    frames = []
+    for k, v in info.items():
+        if _is_curve(v):
+            arr = np.asarray(v, dtype=float).ravel()
+            frames.append(pd.DataFrame({"curve": k, "index": np.arange(len(arr)), "value": arr}))
+        elif isinstance(v, dict):  # e.g. per-agent loss curves
+            for sub, vv in v.items():
+                if _is_curve(vv):
+                    arr = np.asarray(vv, dtype=float).ravel()
+                    frames.append(pd.DataFrame({"curve": f"{k}/{sub}", "index": np.arange(len(arr)),
+                                                "value": arr}))
+    return pd.concat(frames, ignore_index=True).to_dict("list") if frames else None
+
+
+def execute(job: tuple) -> dict:
+    """Entry point of every executor: ("reference", args) or ("cell", (cell, reference))."""
+    kind, payload = job
+    if kind == "reference":
+        return {"reference": compute_reference(*payload)}
+    cell, reference = payload
+    return run_cell(cell, reference)

@@ -1,0 +1,160 @@
+"""Executors: run jobs (references and cells) on local processes or on a Ray cluster.
+
+Both call :func:`bench.cells.execute` on every job and hand each result to the driver as soon as
+it is done, so results are identical whichever runs them (for deterministic planners). A job that
+exceeds the timeout is stopped and comes back as an error; so does a worker that dies.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Callable
+from multiprocessing.connection import wait
+
+from bench.cells import execute
+
+Job = tuple  # ("reference", args) | ("cell", (cell, reference))
+#: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+OnResult = Callable[[Job, dict | None, str], None]  # (job, result or None, error text)
+
+
+def _affinity(job: Job):
+    kind, payload = job
+    return payload[:4] if kind == "reference" else payload[0].problem_key
+
+
+def _worker(conn, threads: int) -> None:  # pragma: no cover - runs in a child process
+    import numba
+
+    numba.set_num_threads(threads)
+    try:
+        import torch
+
+        torch.set_num_threads(threads)
+    except ImportError:
+        pass
+    while True:
+        try:
+            job = conn.recv()
+        except EOFError:
+            return
+        if job is None:
+            return
+        conn.send(execute(job))
+
+
+class LocalExecutor:
+    """A pool of worker processes (spawned: safe with numba and torch threads), one job each.
+
+    Jobs sharing a problem go to the worker that built it, so its FE model and oracle are reused.
+    """
+
+    def __init__(self, workers: int | None = None, timeout: float | None = None):
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.timeout = timeout
+        self.ctx = mp.get_context("spawn")
+
+    def _start(self):
+        parent, child = self.ctx.Pipe()
+        threads = max(1, (os.cpu_count() or 1) // self.workers)
+        saved = {k: os.environ.get(k) for k in THREAD_VARS}
+        os.environ.update({k: str(threads) for k in THREAD_VARS})  # read by the child's imports
+        try:
+            proc = self.ctx.Process(target=_worker, args=(child, threads), daemon=True)
+            proc.start()
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        child.close()
+        return {"proc": proc, "conn": parent, "job": None, "since": 0.0, "key": None}
+
+    def run(self, jobs: list[Job], on_result: OnResult) -> None:
+        queue = list(jobs)
+        slots = [self._start() for _ in range(min(self.workers, len(queue)))]
+        try:
+            while queue or any(s["job"] is not None for s in slots):
+                for s in slots:
+                    if s["job"] is None and queue:
+                        i = next((i for i, j in enumerate(queue) if _affinity(j) == s["key"]), 0)
+                        s["job"], s["since"] = queue.pop(i), time.monotonic()
+                        s["key"] = _affinity(s["job"])
+                        s["conn"].send(s["job"])
+                busy = [s for s in slots if s["job"] is not None]
+                ready = wait([s["conn"] for s in busy], timeout=0.2)
+                for s in busy:
+                    if s["conn"] in ready:
+                        try:
+                            result = s["conn"].recv()
+                        except (EOFError, OSError):
+                            code = s["proc"].exitcode
+                            self._replace(slots, s)
+                            on_result(s["job"], None, f"worker died (exit code {code})")
+                        else:
+                            on_result(s["job"], result, "")
+                        s["job"] = None
+                    elif self.timeout and time.monotonic() - s["since"] > self.timeout:
+                        job = s["job"]
+                        self._replace(slots, s)
+                        on_result(job, None, f"timeout: stopped after {self.timeout:g} s")
+        finally:
+            for s in slots:
+                try:
+                    s["conn"].send(None)
+                except (OSError, BrokenPipeError):
+                    pass
+                s["proc"].join(timeout=2)
+                if s["proc"].is_alive():
+                    s["proc"].kill()
+
+    def _replace(self, slots: list, slot: dict) -> None:
+        slot["proc"].kill()
+        slot["proc"].join()
+        slot.update(self._start())
+
+
+class RayExecutor:
+    """The same jobs as Ray tasks (one CPU each) on a local Ray instance or an existing cluster."""
+
+    def __init__(self, workers: int | None = None, timeout: float | None = None, address: str | None = None):
+        import ray
+
+        self.ray = ray
+        if not ray.is_initialized():
+            kwargs = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+            ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+        self.workers = workers or int(ray.cluster_resources().get("CPU", 1))
+        self.timeout = timeout
+        self.remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
+
+    def run(self, jobs: list[Job], on_result: OnResult) -> None:
+        ray, queue, running = self.ray, list(jobs), {}
+        while queue or running:
+            while queue and len(running) < self.workers:  # bounded in flight: start time ~ submit
+                job = queue.pop(0)
+                running[self.remote.remote(job)] = (job, time.monotonic())
+            done, _ = ray.wait(list(running), num_returns=1, timeout=0.2)
+            for ref in done:
+                job, _ = running.pop(ref)
+                try:
+                    on_result(job, ray.get(ref), "")
+                except Exception as exc:  # the task itself failed (worker died, ...)
+                    on_result(job, None, f"ray task failed: {type(exc).__name__}: {exc}".splitlines()[0])
+            if self.timeout:
+                for ref, (job, since) in list(running.items()):
+                    if time.monotonic() - since > self.timeout:
+                        ray.cancel(ref, force=True)
+                        running.pop(ref)
+                        on_result(job, None, f"timeout: stopped after {self.timeout:g} s")
+
+
+def _ray_execute(job: Job) -> dict:  # pragma: no cover - runs in a Ray worker
+    import numba
+
+    numba.set_num_threads(1)
+    return execute(job)

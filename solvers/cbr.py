@@ -1,0 +1,279 @@
+"""Case-based reasoning: retrieve solved (part, material, task) cases, adapt their layouts, polish.
+
+**Library.** :func:`build_library` solves source problems offline with another registered planner
+(default ``greedy``, else ``random``) and writes one JSON file: for each solved task, its feature
+vectors (below) and its fixture *positions* in metres relative to the part's bounding-box corner
+(with the box size, so positions can also be mapped in box-normalised coordinates), plus a
+``sources`` list with the samples each source solve spent; ``library_samples`` is their sum. These
+offline samples are reported apart from the online ones (``info["library_samples"]``). The default
+file is ``~/.cache/fixbench/cbr_library.json`` (``DEFAULT_LIBRARY``); ``Config.library`` names
+another. Each entry also keeps ``score_m``, the harness's score of the source layout, for reports
+only: retrieval never reads it.
+
+**Features** (each a plain number; distances are Euclidean on the concatenation, each block
+multiplied by its ``*_weight``):
+
+- part: log10 of the bounding-box width and height (m), area / box area (fill), log10 thickness,
+  number of holes, log10 number of candidates, number of agents / 10, mean fraction of the four
+  DOFs (ux, uy, w, rot) that the base supports hold, and the supports' centroid in box-normalised
+  coordinates (where the part is held). Logs make them scale-aware: a twice-larger part is 0.3 away.
+- material: log10 E (Pa), Poisson's ratio, log10 density. Deformation scales with 1/E, but the
+  best layout of a linear problem hardly depends on it: the default weight is small.
+- task: the case's task feature vector (padded or cut to ``TASK_DIMS``), the box-normalised
+  centroid of the task's patch loads (0.5, 0.5 if none), log10 of the total patch force (N), and
+  the counts of pressure, centrifugal and edge-traction loads.
+
+**Retrieval** is a k-nearest-neighbour query (``scipy.spatial.cKDTree``) for each task.
+
+**Adaptation** maps a retrieved layout's positions into the current part (box-normalised by
+default, ``map_normalised``), assigns positions to agents by a minimum-cost assignment
+(``scipy.optimize.linear_sum_assignment``; cost = distance from the position to the agent's
+nearest candidate), and gives each assigned agent its candidate nearest to its position. With more
+agents than stored positions, the agents left over take, one by one, the candidate of their set
+farthest from every pad placed so far (spread); with fewer, the worst-matched positions are dropped.
+
+**Polish** (counted, ``polish_samples`` per task, fewer if the budget is smaller): evaluate the k
+distinct adaptations, then coordinate descent from the best over each agent's ``pool`` candidates
+nearest to its pad (:func:`solvers.qp.coordinate_descent`). ``polish_samples=0`` spends no sample
+at all: the nearest case's adaptation is returned unevaluated. Shared mode pools the neighbours of
+every task, ordered by distance, and judges layouts on every task (n_tasks samples each).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from cases.problem import Problem
+from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from solvers.qp import coordinate_descent
+from solvers.registry import available, get, register
+
+DEFAULT_LIBRARY = Path.home() / ".cache" / "fixbench" / "cbr_library.json"
+TASK_DIMS = 4
+FORMAT = 1
+
+
+@dataclass(frozen=True)
+class CBRConfig(PlannerConfig):
+    library: str = ""
+    """Path of the case library (JSON from build_library); empty: DEFAULT_LIBRARY."""
+
+    k: int = 3
+    """Neighbours retrieved per task."""
+
+    part_weight: float = 1.0
+    """Weight of the part features in the retrieval distance."""
+
+    material_weight: float = 0.2
+    """Weight of the material features in the retrieval distance."""
+
+    task_weight: float = 1.0
+    """Weight of the task features in the retrieval distance."""
+
+    map_normalised: bool = True
+    """Map positions in box-normalised coordinates (else metres from the box corner)."""
+
+    polish_samples: int = 20
+    """Counted evaluations per task for polishing (0: return the adaptation unevaluated)."""
+
+    pool: int = 5
+    """Candidates per agent, nearest to its pad, that coordinate descent may swap in."""
+
+
+# ---------------------------------------------------------------------------------------------
+# features
+# ---------------------------------------------------------------------------------------------
+def _box(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    x0, y0, x1, y1 = problem.spec.polygon.bounds
+    return np.array([x0, y0]), np.array([x1 - x0, y1 - y0])
+
+
+def part_features(problem: Problem) -> np.ndarray:
+    """Scale-aware numbers describing the part, its supports and its fixture problem."""
+    spec = problem.spec
+    lo, size = _box(problem)
+    held = np.mean([len(s.holds) / 4 for s in spec.supports])
+    where = []
+    for s in spec.supports:
+        if s.segment is not None:
+            where.append(np.mean(s.segment, axis=0))
+        elif s.point is not None:
+            where.append(np.asarray(s.point))
+        elif s.hole is not None:
+            where.append(np.asarray(spec.polygon.interiors[s.hole].centroid.coords[0]))
+        else:
+            where.append(np.asarray(spec.polygon.centroid.coords[0]))
+    centre = (np.mean(where, axis=0) - lo) / size
+    return np.array([np.log10(size[0]), np.log10(size[1]), spec.polygon.area / np.prod(size),
+                     np.log10(spec.thickness), len(spec.polygon.interiors), np.log10(len(problem.candidates)),
+                     problem.n_agents / 10, held, *centre])
+
+
+def material_features(problem: Problem) -> np.ndarray:
+    m = problem.spec.material
+    return np.array([np.log10(m.E), m.nu, np.log10(m.density)])
+
+
+def task_features(problem: Problem, task: int) -> np.ndarray:
+    """The case's task features (padded), where and how hard its patch loads push, load kinds."""
+    lo, size = _box(problem)
+    f = np.zeros(TASK_DIMS)
+    own = np.asarray(problem.features[task], dtype=float).ravel()[:TASK_DIMS]
+    f[:len(own)] = own
+    loads = problem.tasks[task].loads
+    patches = [ld for ld in loads if ld.kind == "patch" and ld.at is not None]
+    centre = (np.mean([ld.at for ld in patches], axis=0) - lo) / size if patches else np.full(2, 0.5)
+    force = sum(float(np.linalg.norm(ld.force)) for ld in patches)
+    kinds = [sum(ld.kind == k for ld in loads) for k in ("pressure", "centrifugal", "edge_traction")]
+    return np.concatenate([f, centre, [np.log10(1.0 + force)], kinds])
+
+
+def features(problem: Problem, task: int, cfg: CBRConfig) -> np.ndarray:
+    """The weighted retrieval vector of one task."""
+    return np.concatenate([cfg.part_weight * part_features(problem),
+                           cfg.material_weight * material_features(problem),
+                           cfg.task_weight * task_features(problem, task)])
+
+
+# ---------------------------------------------------------------------------------------------
+# library
+# ---------------------------------------------------------------------------------------------
+def build_library(problems: list[Problem], planner: str | None = None, budget: int | None = None,
+                  path: str | Path = DEFAULT_LIBRARY, seed: int = 0) -> dict:
+    """Solve each problem per task with ``planner`` (``budget`` samples per problem) and save.
+
+    Default planner: ``greedy`` if registered, else ``random``. Returns the library (also written
+    to ``path`` as JSON, parent folders created).
+    """
+    name = planner or ("greedy" if "greedy" in available() else "random")
+    solver = get(name)()
+    entries, sources = [], []
+    for problem in problems:
+        result = solver.solve(problem, budget, seed=seed, mode="per-task")
+        lo, size = _box(problem)
+        sources.append({"case": problem.name, "material": problem.spec.material.name, "planner": name,
+                        "budget": budget, "seed": seed, "samples": int(result.samples)})
+        for t in range(problem.n_tasks):
+            entries.append({
+                "case": problem.name, "part": problem.spec.part, "material": problem.spec.material.name,
+                "task": t, "task_name": problem.tasks[t].name,
+                "part_features": part_features(problem).tolist(),
+                "material_features": material_features(problem).tolist(),
+                "task_features": task_features(problem, t).tolist(),
+                "positions_m": (problem.candidates[result.layouts[t]] - lo).tolist(),
+                "box_m": size.tolist(), "score_m": float(result.max_deformation[t])})
+    library = {"format": FORMAT, "library_samples": int(sum(s["samples"] for s in sources)),
+               "sources": sources, "entries": entries}
+    path = Path(path).expanduser()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(library, indent=1))
+    return library
+
+
+def load_library(path: str | Path) -> dict:
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise PlannerError(f"planner 'cbr': no case library at {path} (build one with "
+                           "solvers.cbr.build_library, or set library=PATH)")
+    try:
+        library = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise PlannerError(f"planner 'cbr': {path}: not a case library ({exc})") from None
+    if library.get("format") != FORMAT or not library.get("entries"):
+        raise PlannerError(f"planner 'cbr': {path}: not a case library of format {FORMAT}, or empty")
+    return library
+
+
+def _entry_vector(e: dict, cfg: CBRConfig) -> np.ndarray:
+    return np.concatenate([cfg.part_weight * np.asarray(e["part_features"]),
+                           cfg.material_weight * np.asarray(e["material_features"]),
+                           cfg.task_weight * np.asarray(e["task_features"])])
+
+
+# ---------------------------------------------------------------------------------------------
+# adaptation and planner
+# ---------------------------------------------------------------------------------------------
+def adapt(problem: Problem, entry: dict, normalised: bool) -> np.ndarray:
+    """A library entry's positions mapped onto this problem's agents (see module docstring)."""
+    lo, size = _box(problem)
+    pos = np.asarray(entry["positions_m"], dtype=float).reshape(-1, 2)
+    pos = lo + (pos / np.asarray(entry["box_m"]) * size if normalised else pos)
+    xy = problem.candidates
+    sets = problem.action_sets
+    cost = np.array([[np.min(np.linalg.norm(xy[s] - p, axis=1)) for p in pos] for s in sets])
+    agents, which = linear_sum_assignment(cost)
+    layout = np.full(problem.n_agents, -1, dtype=np.int64)
+    for a, i in zip(agents, which):
+        layout[a] = sets[a][np.argmin(np.linalg.norm(xy[sets[a]] - pos[i], axis=1))]
+    for a in np.flatnonzero(layout < 0):  # more agents than stored positions: spread out
+        placed = xy[layout[layout >= 0]]
+        if len(placed) == 0:
+            layout[a] = sets[a][0]
+            continue
+        gap = np.min(np.linalg.norm(xy[sets[a]][:, None, :] - placed[None, :, :], axis=2), axis=1)
+        layout[a] = sets[a][np.argmax(gap)]
+    return layout
+
+
+@register
+class CaseBasedReasoning(Planner):
+    name = "cbr"
+    description = "case-based reasoning: nearest solved cases from a library, adapted and polished"
+    Config = CBRConfig
+
+    def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
+        cfg = self.config
+        if cfg.k < 1:
+            raise PlannerError(f"planner 'cbr': k must be at least 1, got {cfg.k}")
+        library = load_library(cfg.library or DEFAULT_LIBRARY)
+        entries = library["entries"]
+        tree = cKDTree(np.array([_entry_vector(e, cfg) for e in entries]))
+        k = min(cfg.k, len(entries))
+        query = np.array([features(problem, t, cfg) for t in range(problem.n_tasks)])
+        dist, idx = tree.query(query, k=k)
+        dist, idx = dist.reshape(problem.n_tasks, k), idx.reshape(problem.n_tasks, k)
+        info = {"library_samples": library["library_samples"], "distance": dist[:, 0].tolist(),
+                "neighbours": [[f"{entries[i]['case']}/{entries[i]['material']}/task{entries[i]['task']}"
+                                for i in row] for row in idx]}
+        if mode == "shared":
+            order = np.argsort(dist, axis=None, kind="stable")
+            options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx.ravel()[order]])
+            budget = int(min(cfg.polish_samples, ev.remaining // problem.n_tasks))
+            layout = self._polish(problem, ev, options, budget, None, cfg)
+            return np.tile(layout, (problem.n_tasks, 1)), info
+        layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
+        for t in range(problem.n_tasks):
+            options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx[t]])
+            budget = int(min(cfg.polish_samples, ev.remaining // (problem.n_tasks - t)))
+            layouts[t] = self._polish(problem, ev, options, budget, t, cfg)
+        return layouts, info
+
+    @staticmethod
+    def _polish(problem: Problem, ev: TracedEvaluator, options: list[np.ndarray], budget: int,
+                task: int | None, cfg: CBRConfig) -> np.ndarray:
+        if budget < 1:
+            return options[0]
+        first = np.array(options[:budget])
+        vals = ev.evaluate_shared(first) if task is None else ev.evaluate(task, first).max_u
+        known = dict(zip(map(tuple, first.tolist()), vals.tolist()))
+        start = first[int(np.argmin(vals))]
+        xy = problem.candidates
+        pools = [s[np.argsort(np.linalg.norm(xy[s] - xy[start[a]], axis=1), kind="stable")[:max(cfg.pool, 1)]]
+                 for a, s in enumerate(problem.action_sets)]
+        return coordinate_descent(problem, ev, start, pools, budget - len(first), task, known)
+
+
+def _unique(layouts: list[np.ndarray]) -> list[np.ndarray]:
+    seen, out = set(), []
+    for lay in layouts:
+        key = tuple(lay.tolist())
+        if key not in seen:
+            seen.add(key)
+            out.append(lay)
+    return out
