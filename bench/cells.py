@@ -130,6 +130,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
                    best_max_deformation_m=float(res.max_deformation.min()),
                    objective_m=res.objective, mean_reward=float(res.reward.mean()),
                    mean_reward_bell=float(res.reward_bell.mean()),
+                   layouts=json.dumps(res.layouts.tolist()),
                    info=json.dumps({k: v for k, v in res.info.items() if not _is_curve(v)}, default=str),
                    **metrics(res, reference))
         trace = pd.DataFrame(res.trace, columns=["task", "task_samples", "samples", "best"]).to_dict("list")

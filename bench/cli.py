@@ -212,6 +212,21 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed)
                f"{summary['skipped']} already done; results in {out}")
 
 
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Report folder (default: RUN_DIR/report).")
+@click.option("--no-fields", is_flag=True,
+              help="Skip the deformation-field pictures (they rebuild each case's FE model).")
+def report(run_dir, out, no_fields) -> None:
+    """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR."""
+    from bench.report import make_report
+
+    res = make_report(run_dir, out, fields=not no_fields)
+    click.echo(f"wrote {res['report']} ({len(res['tables'])} tables, {len(res['figures'])} figures"
+               + (f", {len(res['notes'])} skipped" if res["notes"] else "") + ")")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

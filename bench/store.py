@@ -48,13 +48,14 @@ ROW_SCHEMA = {
     "success_1pct": "fraction of tasks whose final layout is within 1 % of the optimum",
     "success_5pct": "same, within 5 %",
     "samples": "samples the planner spent", "wall_s": "wall time of the cell", "cpu_s": "CPU time of the cell",
+    "layouts": "the planner's layout per task (JSON)",
     "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
 }
 
 
 def write_json_atomic(path: Path, data) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".json")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
     with os.fdopen(fd, "w") as f:
         json.dump(data, f, default=str, indent=1)
         f.flush()
@@ -64,7 +65,7 @@ def write_json_atomic(path: Path, data) -> None:
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".parquet")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".parquet.tmp")
     os.close(fd)
     df.to_parquet(tmp, index=False)
     os.replace(tmp, path)

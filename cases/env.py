@@ -84,11 +84,11 @@ class FixtureEnv(ParallelEnv):
         """The task (index into ``problem.tasks``) the agents are asked about now."""
         return int(self._order[min(self._pos, len(self._order) - 1)])
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019 - spaces never change; the same object each call
+    @functools.cache  # noqa: B019 - spaces never change; the same object each call
     def observation_space(self, agent):
         return self.observation_spaces[agent]
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019
+    @functools.cache  # noqa: B019
     def action_space(self, agent):
         return self.action_spaces[agent]
 

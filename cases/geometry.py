@@ -130,8 +130,8 @@ def measurement_points(spec) -> np.ndarray:
         edge.append(pts)
     loads = [ld.at for t in spec.tasks for ld in t.loads if ld.at is not None]
     pts = np.vstack(edge + [grid] + ([np.array(loads)] if loads else []))
-    # keep one point per cell of size s/4 (drill lines are dense) in a stable order
-    key = np.round(pts / (s / 4)).astype(np.int64)
+    # keep one point per cell of size s/2 (drill lines are dense) in a stable order
+    key = np.round(pts / (s / 2)).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
     return inward(poly, pts[np.sort(first)])
 

@@ -15,8 +15,10 @@ charges one sample per compliance column read, and refuses to pass a hard budget
 
 from __future__ import annotations
 
+import hashlib
 import math
-from dataclasses import dataclass
+import pickle
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -29,8 +31,8 @@ from cases.oracle import Oracle
 from cases.spec import CaseSpec, load_case_spec
 
 #: models and oracles are cached per (case, material, mesh scale, tasks, candidates) in a process
-_MODELS: dict[tuple, PlateModel] = {}
-_ORACLES: dict[tuple, Oracle] = {}
+_MODELS: dict[str, PlateModel] = {}
+_ORACLES: dict[str, Oracle] = {}
 
 
 @dataclass(frozen=True)
@@ -71,10 +73,10 @@ class Problem:
         """Number of joint layouts (product of the agents' set sizes)."""
         return math.prod(len(a) for a in self.action_sets)
 
-    def _key(self) -> tuple:
-        """What the model and oracle depend on (not the agents: the oracle spans all candidates)."""
-        return (self.spec.source, self.spec.material, self.mesh_scale,
-                tuple(t.name for t in self.spec.tasks), self.candidates.tobytes())
+    def _key(self) -> str:
+        """Hash of everything the model and oracle depend on (all of the spec but the agents)."""
+        content = replace(self.spec, n_agents=1, agent_regions=())
+        return hashlib.sha1(pickle.dumps((content, self.mesh_scale))).hexdigest()
 
     @cached_property
     def model(self) -> PlateModel:

@@ -7,8 +7,11 @@ vectors (below) and its fixture *positions* in metres relative to the part's bou
 ``sources`` list with the samples each source solve spent; ``library_samples`` is their sum. These
 offline samples are reported apart from the online ones (``info["library_samples"]``). The default
 file is ``~/.cache/fixbench/cbr_library.json`` (``DEFAULT_LIBRARY``); ``Config.library`` names
-another. Each entry also keeps ``score_m``, the harness's score of the source layout, for reports
-only: retrieval never reads it.
+another. A missing file is built on first use from ``Config.bootstrap`` (the four ``*_small``
+catalog cases, ``bootstrap_budget`` samples per task; about a minute). Mind that a query on one
+of those cases then finds its own offline solutions: for a fair comparison build the library on
+other parts or materials (leave-one-out) and report ``library_samples``. Each entry also keeps
+``score_m``, the harness's score of the source layout, for reports only: retrieval never reads it.
 
 **Features** (each a plain number; distances are Euclidean on the concatenation, each block
 multiplied by its ``*_weight``):
@@ -49,7 +52,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from cases.problem import Problem
+from cases.problem import Problem, load_problem
 from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from solvers.qp import coordinate_descent
 from solvers.registry import available, get, register
@@ -63,6 +66,12 @@ FORMAT = 1
 class CBRConfig(PlannerConfig):
     library: str = ""
     """Path of the case library (JSON from build_library); empty: DEFAULT_LIBRARY."""
+
+    bootstrap: tuple[str, ...] = ("fan_small", "wing_panel_small", "wing_spar_small", "bus_panel_small")
+    """Cases (catalog material) solved into a new library when the library file does not exist."""
+
+    bootstrap_budget: int = 50
+    """Samples per task the library-building planner gets when bootstrapping."""
 
     k: int = 3
     """Neighbours retrieved per task."""
@@ -145,8 +154,11 @@ def features(problem: Problem, task: int, cfg: CBRConfig) -> np.ndarray:
 # library
 # ---------------------------------------------------------------------------------------------
 def build_library(problems: list[Problem], planner: str | None = None, budget: int | None = None,
-                  path: str | Path = DEFAULT_LIBRARY, seed: int = 0) -> dict:
-    """Solve each problem per task with ``planner`` (``budget`` samples per problem) and save.
+                  path: str | Path = DEFAULT_LIBRARY, seed: int = 0,
+                  per_task_budget: int | None = None) -> dict:
+    """Solve each problem per task with ``planner`` and save the library.
+
+    Each problem gets ``budget`` samples, or ``per_task_budget`` times its task count when given.
 
     Default planner: ``greedy`` if registered, else ``random``. Returns the library (also written
     to ``path`` as JSON, parent folders created).
@@ -155,10 +167,11 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
     solver = get(name)()
     entries, sources = [], []
     for problem in problems:
-        result = solver.solve(problem, budget, seed=seed, mode="per-task")
+        share = budget if per_task_budget is None else per_task_budget * problem.n_tasks
+        result = solver.solve(problem, share, seed=seed, mode="per-task")
         lo, size = _box(problem)
         sources.append({"case": problem.name, "material": problem.spec.material.name, "planner": name,
-                        "budget": budget, "seed": seed, "samples": int(result.samples)})
+                        "budget": share, "seed": seed, "samples": int(result.samples)})
         for t in range(problem.n_tasks):
             entries.append({
                 "case": problem.name, "part": problem.spec.part, "material": problem.spec.material.name,
@@ -231,7 +244,11 @@ class CaseBasedReasoning(Planner):
         cfg = self.config
         if cfg.k < 1:
             raise PlannerError(f"planner 'cbr': k must be at least 1, got {cfg.k}")
-        library = load_library(cfg.library or DEFAULT_LIBRARY)
+        path = Path(cfg.library or DEFAULT_LIBRARY).expanduser()
+        if not path.exists() and cfg.bootstrap:
+            build_library([load_problem(c) for c in cfg.bootstrap], budget=None, path=path,
+                          per_task_budget=cfg.bootstrap_budget)
+        library = load_library(path)
         entries = library["entries"]
         tree = cKDTree(np.array([_entry_vector(e, cfg) for e in entries]))
         k = min(cfg.k, len(entries))

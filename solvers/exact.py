@@ -214,15 +214,15 @@ class Exact(Planner):
                 add([(l0, M / s_u * H.T), (u0, sp.identity(nm, format="csr"))], m, m)
                 comps += [u0 + k * n_meas + np.arange(n_meas) for k in range(len(_COMPONENTS[f]))]
             for e in _directions(n_comp):  # e . u_p - t <= 0 for every direction e and point p
-                pieces = [(0, sp.csr_matrix((np.full(n_meas, -1.0), (np.arange(n_meas), np.full(n_meas, t_var))),
-                                            shape=(n_meas, n_var)))]
+                minus_t = (np.full(n_meas, -1.0), (np.arange(n_meas), np.full(n_meas, t_var)))
+                pieces = [(0, sp.csr_matrix(minus_t, shape=(n_meas, n_var)))]
                 pieces += [(0, sp.csr_matrix((np.full(n_meas, e[k]), (np.arange(n_meas), comps[k])),
                                              shape=(n_meas, n_var))) for k in np.flatnonzero(e)]
                 add(pieces, -np.inf, 0.0)
         lb = np.full(n_var, -np.inf)
         ub = np.full(n_var, np.inf)
         lb[:n_c], ub[:n_c] = 0.0, 1.0
-        for (t, f), (l0, u0) in offset.items():
+        for l0, u0 in offset.values():
             lb[l0:u0], ub[l0:u0] = -1.0, 1.0
         lb[t_var] = 0.0
         cost = np.zeros(n_var)

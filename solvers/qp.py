@@ -89,7 +89,7 @@ class QPConfig(PlannerConfig):
     max_candidates_per_agent: int = 0
     """Screen each agent's set to this many evenly spaced candidates before reading (0 = all)."""
 
-    eps: float = 1e-7
+    eps: float = 1e-5
     """OSQP absolute and relative tolerance."""
 
     max_iter: int = 20000

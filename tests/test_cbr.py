@@ -1,0 +1,84 @@
+"""The cbr planner: library building, zero-sample retrieval, counted polish, degradation far away."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cases import load_problem
+from cases.problem import Problem
+from cases.spec import load_case_spec
+from solvers.base import PlannerError
+from solvers.cbr import CaseBasedReasoning, build_library
+from solvers.registry import get
+
+BUILD_BUDGET = 100  # samples per task when building the library (and for the reference solves)
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    """Wing panel (aluminium), tasks 0, 4, 8, solved by the default planner (greedy)."""
+    source = Problem(load_case_spec("wing_panel_small").with_tasks([0, 4, 8]))
+    path = tmp_path_factory.mktemp("cbr") / "library.json"
+    lib = build_library([source], budget=BUILD_BUDGET * source.n_tasks, path=path)
+    return source, path, lib
+
+
+def test_library_file_records_positions_and_offline_samples(library):
+    source, path, lib = library
+    stored = json.loads(path.read_text())
+    assert stored["library_samples"] == lib["library_samples"] > 0
+    assert stored["sources"][0]["planner"] == "greedy"
+    assert len(stored["entries"]) == source.n_tasks
+    pos = np.array(stored["entries"][0]["positions_m"])
+    assert pos.shape == (source.n_agents, 2) and (pos >= 0).all()  # metres from the box corner
+
+
+def test_zero_samples_returns_the_stored_layouts(library):
+    source, path, lib = library
+    r = CaseBasedReasoning(library=str(path), polish_samples=0).solve(source, None, seed=0)
+    assert r.samples == 0 and len(r.trace) == 0
+    assert r.info["library_samples"] == lib["library_samples"]
+    assert np.allclose(r.info["distance"], 0.0)
+    stored = np.array([e["positions_m"] for e in lib["entries"]])
+    lo = np.array(source.spec.polygon.bounds[:2])
+    assert np.allclose(source.candidates[r.layouts] - lo, stored)  # positions map back exactly
+
+
+def test_polish_is_counted_and_within_budget(library):
+    source, path, _ = library
+    r = CaseBasedReasoning(library=str(path), polish_samples=6).solve(source, 10, seed=0)
+    assert 0 < r.samples <= 10
+    assert r.trace[-1, 2] == r.samples
+    s = CaseBasedReasoning(library=str(path), polish_samples=2).solve(source, None, seed=0, mode="shared")
+    assert (s.layouts == s.layouts[0]).all() and s.samples <= 2 * source.n_tasks
+
+
+def test_missing_library_is_a_clear_error(tmp_path):
+    with pytest.raises(PlannerError, match="no case library"):
+        cbr = CaseBasedReasoning(library=str(tmp_path / "none.json"), bootstrap=())
+        cbr.solve(load_problem("fan_small"), None)
+
+
+def test_degrades_with_distance_from_the_library(library):
+    """(a) close: same part, titanium, tasks between the library's; (b) far: fan_small.
+
+    Ratio = cbr's mean max deformation (no online sample) / greedy's with BUILD_BUDGET per task on
+    the query itself. Within the library the ratio is 1 (the stored layouts come back).
+    """
+    source, path, _ = library
+    queries = {"within": source,
+               "close": Problem(load_case_spec("wing_panel_small", "titanium").with_tasks([2, 6])),
+               "far": load_problem("fan_small")}
+    dist, ratio = {}, {}
+    for name, q in queries.items():
+        r = CaseBasedReasoning(library=str(path), polish_samples=0).solve(q, None, seed=0)
+        ref = get("greedy")().solve(q, BUILD_BUDGET * q.n_tasks, seed=0)
+        dist[name] = float(np.mean(r.info["distance"]))
+        ratio[name] = float(r.max_deformation.mean() / ref.max_deformation.mean())
+    print("retrieval distance", dist, "deformation ratio vs greedy", ratio)
+    assert dist["within"] == pytest.approx(0.0, abs=1e-12) and ratio["within"] == pytest.approx(1.0)
+    assert dist["within"] < dist["close"] < dist["far"]
+    assert ratio["far"] > ratio["within"]
