@@ -20,8 +20,8 @@ setup: $(STAMP)
 
 bench: setup
 	$(BIN)/fixbench validate
-	$(BIN)/fixbench cases
-	for c in wing_panel wing_spar bus_panel fan; do $(BIN)/fixbench show $$c --out results/figures/$$c.png; done
+	$(BIN)/fixbench run bench/matrices/default.toml --out results/default
+	$(BIN)/fixbench report results/default
 
 test: setup
 	$(BIN)/ruff check .

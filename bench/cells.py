@@ -6,11 +6,15 @@ and oracle once.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.metadata
 import json
 import math
+import os
+import re
 import time
 import traceback
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -40,7 +44,13 @@ def problem_for(case: str, material: str | None, agents: int | None, tasks: int 
 
 
 def reference_key(case: str, material: str | None, agents: int | None, tasks: int | None) -> str:
-    return f"{case}__{material or 'default'}__a{agents or 'default'}__t{tasks or 'all'}"
+    """A file-name-safe key; a case given as a path becomes its stem plus a hash of the path."""
+    name = case
+    if case.endswith(".toml") or "/" in case or os.sep in case:
+        digest = hashlib.sha1(str(Path(case).resolve()).encode()).hexdigest()[:8]
+        name = f"{Path(case).stem}-{digest}"
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+    return f"{name}__{material or 'default'}__a{agents or 'default'}__t{tasks or 'all'}"
 
 
 def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,

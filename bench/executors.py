@@ -88,19 +88,19 @@ class LocalExecutor:
                 busy = [s for s in slots if s["job"] is not None]
                 ready = wait([s["conn"] for s in busy], timeout=0.2)
                 for s in busy:
+                    job = s["job"]
                     if s["conn"] in ready:
                         try:
                             result = s["conn"].recv()
                         except (EOFError, OSError):
                             code = s["proc"].exitcode
-                            self._replace(slots, s)
-                            on_result(s["job"], None, f"worker died (exit code {code})")
+                            self._replace(s)
+                            on_result(job, None, f"worker died (exit code {code})")
                         else:
-                            on_result(s["job"], result, "")
-                        s["job"] = None
+                            s["job"] = None
+                            on_result(job, result, "")
                     elif self.timeout and time.monotonic() - s["since"] > self.timeout:
-                        job = s["job"]
-                        self._replace(slots, s)
+                        self._replace(s)
                         on_result(job, None, f"timeout: stopped after {self.timeout:g} s")
         finally:
             for s in slots:
@@ -112,7 +112,8 @@ class LocalExecutor:
                 if s["proc"].is_alive():
                     s["proc"].kill()
 
-    def _replace(self, slots: list, slot: dict) -> None:
+    def _replace(self, slot: dict) -> None:
+        """Kill a slot's worker and start a fresh one in its place (the slot becomes idle)."""
         slot["proc"].kill()
         slot["proc"].join()
         slot.update(self._start())

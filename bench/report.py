@@ -279,10 +279,13 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
     if traces.empty or ok.empty:
         return out, fallback
     info = ok.set_index("cell")
+    pkey = {c: _problem_key(r) for c, r in info.iterrows()}
     tr = traces[traces["cell"].isin(info.index)]
-    for (cell, task), g in tr.groupby(["cell", "task"], sort=True):
+    seen = tr.assign(pk=tr["cell"].map(pkey)).groupby(["pk", "task"])["best"].min()
+    for cell, task in tr[["cell", "task"]].drop_duplicates().sort_values(["cell", "task"]).itertuples(
+            index=False):
         row = info.loc[cell]
-        pk = _problem_key(row)
+        pk = pkey[cell]
         key = (pk, int(task))
         if key in out:
             continue
@@ -295,9 +298,7 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
                 val = ref["per_task"][int(task)]
         if val is None:
             fallback = True
-            same = info.index[[_problem_key(r) == pk for _, r in info.iterrows()]]
-            sub = tr[tr["cell"].isin(same) & (tr["task"] == task)]
-            val = float(sub["best"].min())
+            val = float(seen.loc[(pk, task)])
         out[key] = float(val)
     return out, fallback
 
@@ -427,7 +428,10 @@ def violin_figure(ok: pd.DataFrame, colors):
         order = sorted(d["label"].unique())
         sns.violinplot(data=d, x="label", y="diff", hue="label", order=order, hue_order=order,
                        palette=colors, cut=0, inner=None, ax=ax, legend=False, density_norm="width")
-        sns.stripplot(data=d, x="label", y="diff", order=order, color="black", size=3, ax=ax)
+        rng = np.random.default_rng(BOOT_SEED)  # deterministic jitter (seaborn's is not seeded)
+        for i, lab in enumerate(order):
+            y = d.loc[d["label"] == lab, "diff"].to_numpy()
+            ax.scatter(i + rng.uniform(-0.1, 0.1, len(y)), y, color="black", s=6, zorder=3)
         ax.set_xlabel("planner")
         ax.set_ylabel("deformation above the optimum (%)")
         ax.set_title(f"{case}: one point per cell", fontsize=9)
@@ -445,9 +449,8 @@ def learner_cells(curves: pd.DataFrame, ok: pd.DataFrame) -> list[str]:
     return sorted(set(has) & set(ok["cell"]))
 
 
-def _curve(curves: pd.DataFrame, cell: str, name: str) -> np.ndarray:
-    c = curves[(curves["cell"] == cell) & (curves["curve"] == name)].sort_values("index")
-    return c["value"].to_numpy(dtype=float)
+def _curve(curves: dict, cell: str, name: str) -> np.ndarray:
+    return curves.get((cell, name), np.zeros(0))
 
 
 def _median_band(ax, arrays: list[np.ndarray], x0: int, color, label):
@@ -476,6 +479,8 @@ def figure4(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict
     and true regret against the optimum), (d) violin of the deformation of every layout tried in
     training relative to the task's optimum."""
     info = ok.set_index("cell")
+    sub = curves[curves["cell"].isin(cells)].sort_values(["cell", "curve", "index"], kind="stable")
+    curves = {k: g["value"].to_numpy(dtype=float) for k, g in sub.groupby(["cell", "curve"], sort=False)}
     fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
     ax_a, ax_b, ax_c, ax_c2, ax_d, ax_none = axes.ravel()
     ax_none.axis("off")

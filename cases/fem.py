@@ -424,7 +424,7 @@ class PlateModel:
         if ld.kind == "pressure" and field == "bending":
             inside = 1.0
             if ld.region is not None:
-                x = fs.basis.global_coordinates().value
+                x = fs.basis.mapping.F(fs.basis.X)  # quadrature points (2, elements, points)
                 inside = shapely.contains_xy(shapely.Polygon(ld.region), x[0], x[1]).astype(float)
             return pressure_form.assemble(fs.basis, q=ld.magnitude, inside=inside)
         if ld.kind == "centrifugal" and field == "membrane":

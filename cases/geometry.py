@@ -23,7 +23,7 @@ from cases.errors import CaseError
 def build_polygon(shapes, reader) -> shapely.Polygon:
     """Combine the case's shapes (unions and differences, rotated copies) into one polygon."""
     part = None
-    for i, s in enumerate(shapes):
+    for s in shapes:
         poly = shapely.Polygon(s.polygon)
         key = s.key
         if not poly.is_valid:

@@ -45,6 +45,8 @@ every task, ordered by distance, and judges layouts on every task (n_tasks sampl
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,6 +95,10 @@ class CBRConfig(PlannerConfig):
 
     pool: int = 5
     """Candidates per agent, nearest to its pad, that coordinate descent may swap in."""
+
+    exclude_same_part: bool = True
+    """Leave one part out: ignore library entries of the query's own part, so that a benchmark
+    measures transfer between parts instead of looking up the query's own offline solutions."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -185,7 +191,10 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
                "sources": sources, "entries": entries}
     path = Path(path).expanduser()
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(library, indent=1))
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(library, f, indent=1)
+    os.replace(tmp, path)  # atomic: concurrent builders never leave half a file
     return library
 
 
@@ -249,7 +258,11 @@ class CaseBasedReasoning(Planner):
             build_library([load_problem(c) for c in cfg.bootstrap], budget=None, path=path,
                           per_task_budget=cfg.bootstrap_budget)
         library = load_library(path)
-        entries = library["entries"]
+        entries = [e for e in library["entries"]
+                   if not (cfg.exclude_same_part and e["part"] == problem.spec.part)]
+        if not entries:
+            raise PlannerError(f"planner 'cbr': the library {path} holds no case of another part "
+                               "(set exclude_same_part=false to use same-part cases)")
         tree = cKDTree(np.array([_entry_vector(e, cfg) for e in entries]))
         k = min(cfg.k, len(entries))
         query = np.array([features(problem, t, cfg) for t in range(problem.n_tasks)])

@@ -24,8 +24,9 @@ Budget: a run gets an allowance of layouts (per-task mode: each task's ``split_b
 shared mode: the budget divided by ``n_tasks``) and pymoo's ``("n_eval", allowance)`` termination.
 A generation that would pass the allowance is cut: its first individuals, up to what fits, are
 evaluated and the rest get ``F = +inf`` without being evaluated or charged; pymoo's counter then
-reaches the allowance and the run ends. So the samples spent never exceed the budget, and a budget
-smaller than one population is a documented best effort: the first (random) population is
+reaches the allowance and the run ends. So the samples spent never exceed the budget. A small
+allowance shrinks the population to ``allowance // min_generations`` (2 at least) so that a run
+still evolves; below 2 layouts a run is a documented best effort: the first (random) population is
 evaluated only as far as it fits, a uniform random sample. A budget with less than one layout per
 task (per task, or for the shared layout) raises :class:`~solvers.base.PlannerError`. A GA that
 can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
@@ -82,8 +83,8 @@ class _EvolutionaryPlanner(Planner):
     """Shared driver: one pymoo run per task (per-task) or one on the worst task (shared)."""
 
     @abstractmethod
-    def _algorithm(self, problem: Problem) -> Algorithm:
-        """The configured pymoo algorithm (a fresh one per run)."""
+    def _algorithm(self, size: int) -> Algorithm:
+        """The configured pymoo algorithm with population ``size`` (a fresh one per run)."""
 
     @abstractmethod
     def _encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable]:
@@ -103,9 +104,10 @@ class _EvolutionaryPlanner(Planner):
         generations, n_eval = [], []
         for score, allowance in runs:
             spent = ev.samples
-            res = minimize(_LayoutProblem(xl, xu, vtype, decode, score, allowance),
-                           self._algorithm(problem), get_termination("n_eval", allowance),
-                           seed=int(rng.integers(2**31)), verbose=False)
+            size = max(2, min(cfg.pop_size, allowance // cfg.min_generations))
+            res = minimize(_LayoutProblem(xl, xu, vtype, decode, score, allowance), self._algorithm(size),
+                           get_termination("n_eval", allowance), seed=int(rng.integers(2**31)),
+                           verbose=False)
             generations.append(int(res.algorithm.n_gen))
             n_eval.append(ev.samples - spent)
         info = {"generations": generations, "n_eval": n_eval}
@@ -116,7 +118,7 @@ class _EvolutionaryPlanner(Planner):
 
 @dataclass(frozen=True)
 class GAConfig(PlannerConfig):
-    pop_size: int = 50
+    pop_size: int = 200
     """Population size; also the offspring per generation (layouts per counted call)."""
 
     crossover_prob: float = 0.9
@@ -128,6 +130,9 @@ class GAConfig(PlannerConfig):
     mutation_eta: float = 3.0
     """Polynomial-mutation distribution index: small makes large jumps in a gene."""
 
+    min_generations: int = 10
+    """A small budget shrinks the population to at most allowance / min_generations (2 at least)."""
+
     evals_per_task: int = 2000
     """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
 
@@ -138,9 +143,9 @@ class GeneticPlanner(_EvolutionaryPlanner):
     description = "pymoo genetic algorithm, one integer gene per agent (index into its set)"
     Config = GAConfig
 
-    def _algorithm(self, problem: Problem) -> Algorithm:
+    def _algorithm(self, size: int) -> Algorithm:
         cfg = self.config
-        return GA(pop_size=cfg.pop_size, sampling=IntegerRandomSampling(),
+        return GA(pop_size=size, sampling=IntegerRandomSampling(),
                   crossover=SBX(prob=cfg.crossover_prob, eta=cfg.crossover_eta, vtype=float,
                                 repair=RoundingRepair()),
                   mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
@@ -159,8 +164,8 @@ class GeneticPlanner(_EvolutionaryPlanner):
 
 @dataclass(frozen=True)
 class PSOConfig(PlannerConfig):
-    swarm_size: int = 50
-    """Particles; also the layouts per counted call."""
+    pop_size: int = 200
+    """Swarm size (particles); also the layouts per counted call."""
 
     w: float = 0.9
     """Inertia weight (the start value when ``adaptive``)."""
@@ -177,6 +182,9 @@ class PSOConfig(PlannerConfig):
     max_velocity_rate: float = 0.2
     """Largest step per generation as a fraction of the agent's box side."""
 
+    min_generations: int = 10
+    """A small budget shrinks the population to at most allowance / min_generations (2 at least)."""
+
     evals_per_task: int = 2000
     """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
 
@@ -187,9 +195,9 @@ class SwarmPlanner(_EvolutionaryPlanner):
     description = "pymoo particle swarm, a point in the plane per agent snapped to its nearest candidate"
     Config = PSOConfig
 
-    def _algorithm(self, problem: Problem) -> Algorithm:
+    def _algorithm(self, size: int) -> Algorithm:
         cfg = self.config
-        return PSO(pop_size=cfg.swarm_size, sampling=LHS(), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
+        return PSO(pop_size=size, sampling=LHS(), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
                    adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)
 
     def _encoding(self, problem: Problem):

@@ -124,12 +124,14 @@ class QPPlanner(Planner):
                 "qp_status": []}
         if mode == "shared":
             mass = qp.masses([resp[t] for t in tasks], info)
-            layout = polish(problem, ev, sets, cand, mass, cfg, None)
+            budget = int(min(cfg.polish_samples, ev.remaining // problem.n_tasks))
+            layout = polish(problem, ev, sets, cand, mass, cfg, None, budget)
             return np.tile(layout, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
         for t in tasks:
             mass = qp.masses([resp[t]], info)
-            layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t)
+            budget = int(min(cfg.polish_samples, ev.remaining // (problem.n_tasks - t)))  # fair share
+            layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t, budget)
         return layouts, info
 
 
@@ -252,7 +254,7 @@ def single_pad(d: FieldData, d0: np.ndarray) -> tuple[float, float]:
 
 
 def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: np.ndarray,
-           mass: np.ndarray, cfg: QPConfig, task: int | None) -> np.ndarray:
+           mass: np.ndarray, cfg: QPConfig, task: int | None, budget: int) -> np.ndarray:
     """Round to the force centroids, then coordinate descent over the pools (module docstring)."""
     xy = problem.candidates
     offsets = np.cumsum([0] + [len(s) for s in sets])
@@ -263,9 +265,7 @@ def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: 
         dist = np.sum((xy[s] - centre) ** 2, axis=1)
         pools.append(s[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
     layout = np.array([p[0] for p in pools], dtype=np.int64)
-    cost = problem.n_tasks if task is None else 1
-    return coordinate_descent(problem, ev, layout, pools, int(min(cfg.polish_samples, ev.remaining // cost)),
-                              task, {})
+    return coordinate_descent(problem, ev, layout, pools, budget, task, {})
 
 
 def coordinate_descent(problem: Problem, ev: TracedEvaluator, layout: np.ndarray, pools: list[np.ndarray],

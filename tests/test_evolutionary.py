@@ -43,19 +43,19 @@ def test_per_task_valid_and_within_budget(fan, name, budget):
     assert r.samples == budget
     assert sum(r.info["n_eval"]) == budget and len(r.info["generations"]) == fan.n_tasks
     # the returned layout of each task is the best one the planner evaluated on it
-    best = [r.trace[r.trace[:, 0] == t, 2].min() for t in range(fan.n_tasks)]
+    best = [r.trace[r.trace[:, 0] == t, -1].min() for t in range(fan.n_tasks)]
     np.testing.assert_allclose(r.max_deformation, best, rtol=1e-12)
 
 
 @pytest.mark.parametrize("name", PLANNERS)
 def test_shared_mode(wing, name):
     budget = 2 * 123 + 1  # 123 shared layouts fit; the odd sample is left
-    r = get(name)(pop_size=40) if name == "ga" else get(name)(swarm_size=40)
+    r = get(name)(pop_size=40)
     r = r.solve(wing, budget, seed=0, mode="shared")
     _valid(wing, r.layouts)
     assert (r.layouts == r.layouts[0]).all()
     assert r.samples == budget - 1 and r.info["n_eval"] == [budget - 1]
-    assert r.trace[r.trace[:, 0] == -1, 2].min() == pytest.approx(r.max_deformation.max(), rel=1e-12)
+    assert r.trace[r.trace[:, 0] == -1, -1].min() == pytest.approx(r.max_deformation.max(), rel=1e-12)
 
 
 @pytest.mark.parametrize("name", PLANNERS)

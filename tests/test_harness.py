@@ -24,6 +24,7 @@ planners = ["random", "greedy"]
 seeds = [0, 1]
 budget = 120
 tasks = 2
+agents = 2
 """
 
 PLANNERS_THAT_MISBEHAVE = '''

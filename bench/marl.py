@@ -1,0 +1,249 @@
+"""MARL benchmark: the seed's Figure 4, the speed of the reference protocol, and small-case optima.
+
+    python -m bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
+    python -m bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--json]
+    python -m bench.marl table   [--episodes 100] [--seed 0] [--json]
+
+``figure4`` draws (a) step reward against step, (b) episodic return and (c) episodic regret (the
+reference's N T 0.7854 - N sum r, and the true regret against the best layout seen) against
+episode, and (d) a violin plot of the percentage difference in max deformation between the
+configuration the trained policy chose for each task and the best one known for that task, one
+violin per run (e.g. per agent count). ``speed`` runs the full protocol once and reports the
+wall time split into oracle, action selection and network updates (timed inside the planner).
+``table`` compares nashq and iql with the proven optimum on every ``*_small`` case.
+
+Oracle set-up (meshing, factorisation, and the compliance columns of every candidate, which the
+oracle otherwise computes lazily the first time a layout uses a candidate) is done and timed
+before a run: it is a property of the problem, costs no samples and is shared by all planners.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cases.problem import Problem, load_problem  # noqa: E402
+from cases.spec import case_names  # noqa: E402
+
+
+def _runs(info_or_results) -> dict[str, tuple[dict, np.ndarray | None]]:
+    """{label: (info, greedy max deformation per task or None)} from one or many runs."""
+    def one(x):
+        if hasattr(x, "info"):  # a PlanResult: the greedy policy's scored deformation is known
+            return x.info, np.asarray(x.max_deformation)
+        return x, None
+
+    if hasattr(info_or_results, "info") or (isinstance(info_or_results, dict) and "step_reward" in info_or_results):
+        info, u = one(info_or_results)
+        return {f"{info.get('algorithm', 'run')}": (info, u)}
+    return {str(k): one(v) for k, v in dict(info_or_results).items()}
+
+
+def _pct_difference(info: dict, greedy_u: np.ndarray | None) -> np.ndarray:
+    """% difference of each task's chosen configuration from the best known on that task.
+
+    Chosen = the greedy policy's layout when the scored result is given, else the layout played
+    in the last episode; best known = min(best seen in training, chosen).
+    """
+    best = np.array([np.inf if b is None else b for b in info["best_seen_max_u"]])
+    if greedy_u is not None:
+        tasks = np.array(info["train_tasks"])
+        u = greedy_u[tasks]
+    else:
+        n = len(info["train_tasks"])
+        tasks = np.array(info["step_task"][-n:])
+        u = np.array(info["step_max_u"][-n:])
+    ref = np.minimum(best[tasks], u)
+    return 100.0 * (u - ref) / ref
+
+
+def figure4(info_or_results, out_dir: str | Path, smooth: int = 500) -> list[Path]:
+    """Write the four panels of the seed's Figure 4 as PNGs into ``out_dir``; returns the paths.
+
+    ``info_or_results``: a planner's info dict or PlanResult, or a dict {label: info or PlanResult}
+    (one line / violin per label). ``smooth``: moving-average window of panel (a).
+    """
+    import seaborn as sns
+
+    runs = _runs(info_or_results)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, (info, _) in runs.items():
+        r = np.asarray(info["step_reward"])
+        ax.plot(r, lw=0.3, alpha=0.3)
+        w = max(1, min(smooth, len(r) // 10 or 1))
+        ax.plot(np.arange(w - 1, len(r)), np.convolve(r, np.ones(w) / w, mode="valid"),
+                color=ax.lines[-1].get_color(), label=f"{label} (mean of {w})")
+    ax.set(xlabel="step", ylabel="step reward", title="(a) step reward")
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out_dir / "fig4a_step_reward.png"))
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, (info, _) in runs.items():
+        ax.plot(np.arange(1, len(info["episode_return"]) + 1), info["episode_return"], label=label)
+    ax.set(xlabel="episode", ylabel="episodic return", title="(b) episodic return")
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out_dir / "fig4b_episodic_return.png"))
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    for label, (info, _) in runs.items():
+        e = np.arange(1, len(info["episode_return"]) + 1)
+        ax1.plot(e, info["episode_regret_ref"], label=label)
+        ax2.plot(e, np.asarray(info["episode_regret_true"]) * 1e3, label=label)
+    ax1.set(xlabel="episode", ylabel="N T 0.7854 - N sum r", title="(c) episodic regret (reference)")
+    ax2.set(xlabel="episode", ylabel="sum of (max u - best u) [mm]",
+            title=f"(c) true regret ({next(iter(runs.values()))[0].get('regret_reference', '')})")
+    ax2.set_yscale("symlog", linthresh=1e-3)
+    ax1.legend(fontsize=8)
+    paths.append(_save(fig, out_dir / "fig4c_episodic_regret.png"))
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    rows = [(label, v) for label, (info, u) in runs.items() for v in _pct_difference(info, u)]
+    labels = [r[0] for r in rows]
+    values = np.array([r[1] for r in rows])
+    sns.violinplot(x=labels, y=values, ax=ax, cut=0, inner="quartile")
+    ax.set(xlabel="fixture configuration (run)", ylabel="% difference in max deformation\nfrom best known",
+           title="(d) deformation of the chosen configurations")
+    paths.append(_save(fig, out_dir / "fig4d_violin.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def prepare(problem: Problem) -> float:
+    """Build the problem's oracle with every candidate's compliance columns; returns seconds."""
+    t = time.perf_counter()
+    problem.oracle.ensure(np.arange(len(problem.candidates)))
+    return time.perf_counter() - t
+
+
+def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None = None,
+          episodes: int = 100, seed: int = 0, threads: int = 0) -> dict:
+    """Run the reference protocol once; wall time and its split (oracle / selection / updates)."""
+    from solvers.registry import get
+
+    problem = load_problem(case, agents=agents)
+    setup = prepare(problem)
+    t = time.perf_counter()
+    res = get(planner)(episodes=episodes, threads=threads).solve(problem, None, seed=seed)
+    wall = time.perf_counter() - t
+    i = res.info
+    return {"case": case, "planner": planner, "agents": problem.n_agents, "tasks": problem.n_tasks,
+            "episodes": i["episodes_run"], "samples": res.samples, "oracle_setup_s": setup,
+            "wall_s": wall, "plan_s": i["time_total_s"], "oracle_s": i["time_oracle_s"],
+            "select_s": i["time_select_s"], "update_s": i["time_update_s"],
+            "greedy_s": i["time_greedy_s"], "br_sweeps_mean": i["br_sweeps_mean"],
+            "br_converged_frac": i["br_converged_frac"], "torch_threads": i["torch_threads"],
+            "mean_max_deformation_m": float(res.max_deformation.mean()),
+            "loadavg": os.getloadavg(), "cpus": os.cpu_count()}
+
+
+def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list[dict]:
+    """Greedy-policy mean max deformation of each planner against the proven optimum, *_small cases."""
+    from solvers.registry import available, get
+
+    rows = []
+    for case in [c for c in case_names() if c.endswith("_small")]:
+        problem = load_problem(case)
+        prepare(problem)
+        if "exact" in available():
+            opt = get("exact")().solve(problem, None).max_deformation
+        else:  # enumerate on the uncounted oracle
+            opt = _enumerate(problem)
+        for name in planners:
+            t = time.perf_counter()
+            res = get(name)(episodes=episodes, optima=tuple(float(x) for x in opt)).solve(problem, None, seed=seed)
+            rows.append({"case": case, "planner": name, "agents": problem.n_agents, "tasks": problem.n_tasks,
+                         "samples": res.samples, "optimum_mean_m": float(opt.mean()),
+                         "planner_mean_m": float(res.max_deformation.mean()),
+                         "gap_pct": 100 * float(res.max_deformation.mean() / opt.mean() - 1),
+                         "tasks_within_10pct": int((res.max_deformation <= 1.1 * opt).sum()),
+                         "best_seen_gap_pct": 100 * float(np.mean(res.info["best_seen_max_u"]) / opt.mean() - 1),
+                         "seconds": time.perf_counter() - t})
+    return rows
+
+
+def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
+    """Per-task optimum by enumeration on the uncounted oracle (fallback without solvers.exact)."""
+    sets = problem.action_sets
+    total = problem.joint_size
+    best = np.full(problem.n_tasks, np.inf)
+    for start in range(0, total, chunk):
+        idx = np.arange(start, min(total, start + chunk))
+        cols = []
+        for s in reversed(sets):
+            idx, d = np.divmod(idx, len(s))
+            cols.append(s[d])
+        layouts = np.column_stack(cols[::-1])
+        for t in range(problem.n_tasks):
+            best[t] = min(best[t], problem.oracle.evaluate(t, layouts)[:, 3].min())
+    return best
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m bench.marl", description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    f = sub.add_parser("figure4")
+    f.add_argument("--case", default="wing_panel")
+    f.add_argument("--planner", default="nashq")
+    f.add_argument("--agents", default="5", help="comma-separated agent counts, one run each")
+    f.add_argument("--episodes", type=int, default=100)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--out", default="results/figures/marl")
+    s = sub.add_parser("speed")
+    s.add_argument("--case", default="wing_panel")
+    s.add_argument("--planner", default="nashq")
+    s.add_argument("--agents", type=int)
+    s.add_argument("--episodes", type=int, default=100)
+    s.add_argument("--threads", type=int, default=0)
+    s.add_argument("--json", action="store_true")
+    t = sub.add_parser("table")
+    t.add_argument("--episodes", type=int, default=100)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+
+    if args.cmd == "figure4":
+        from solvers.registry import get
+
+        results = {}
+        for n in [int(x) for x in args.agents.split(",")]:
+            problem = load_problem(args.case, agents=n)
+            prepare(problem)
+            results[f"{args.planner} N={n}"] = get(args.planner)(episodes=args.episodes).solve(
+                problem, None, seed=args.seed)
+        for p in figure4(results, args.out):
+            print(f"wrote {p}")
+    elif args.cmd == "speed":
+        res = speed(args.case, args.planner, args.agents, args.episodes, threads=args.threads)
+        print(json.dumps(res, indent=1) if args.json else
+              "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()))
+    else:
+        rows = table(args.episodes, args.seed)
+        if args.json:
+            print(json.dumps(rows, indent=1))
+        else:
+            import pandas as pd
+
+            print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".4g"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""The PettingZoo fixture environment: API compliance on the four parts, sample counting, rewards."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from cases import make_env
+from cases.errors import BudgetExhausted, CaseError
+
+TASKS = [0, 1, 2]
+
+
+@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan"])
+def test_parallel_api(part):
+    env = make_env(part, tasks=TASKS)  # the real part, three of its tasks (cheap oracle)
+    assert env.problem.spec.part == part and env.problem.n_tasks == 3
+    parallel_api_test(env, num_cycles=20)
+    assert env.samples > 0
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make_env("wing_panel_small", tasks=TASKS, budget=7)
+
+
+def test_one_sample_per_step_and_episode(env):
+    obs, infos = env.reset(seed=0)
+    start = env.samples
+    assert set(obs) == set(env.possible_agents)
+    assert all(o.dtype == np.float32 and env.observation_space(a).contains(o) for a, o in obs.items())
+    steps = 0
+    while env.agents:
+        acts = {a: env.action_space(a).sample() for a in env.agents}
+        obs, rew, term, trunc, infos = env.step(acts)
+        steps += 1
+        assert env.samples == start + steps
+        r = set(rew.values())
+        assert len(r) == 1 and 0 <= r.pop() <= 1  # one shared reward
+        info = infos[env.possible_agents[0]]
+        assert info["max_u"] > 0 and {"max_uxy", "max_w", "reward_bell", "layout", "task"} <= set(info)
+        assert info["reward_gaussian"] == rew[env.possible_agents[0]]
+    assert steps == 3 and all(term.values()) and env.agents == []
+    with pytest.raises(CaseError):
+        env.step(acts)
+    env.reset()
+    env.step({a: 0 for a in env.agents})
+    with pytest.raises(BudgetExhausted):  # 7 = 3 + 3 + 1 spent; the 8th refuses and spends nothing
+        env.step({a: 0 for a in env.agents})
+    assert env.samples == 7
+
+
+def test_shuffle_and_bell():
+    env = make_env("wing_panel_small", tasks=TASKS, reward="bell", shuffle=True)
+    orders = []
+    for seed in (1, 1, 2):
+        env.reset(seed=seed)
+        order = []
+        while env.agents:
+            order.append(env.task)
+            _, rew, _, _, infos = env.step({a: 0 for a in env.agents})
+            assert rew[env.possible_agents[0]] == infos[env.possible_agents[0]]["reward_bell"]
+        orders.append(order)
+    assert orders[0] == orders[1] and sorted(orders[2]) == TASKS
+    with pytest.raises(CaseError):
+        make_env(env.problem, reward="nope")
