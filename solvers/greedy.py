@@ -3,9 +3,10 @@
 From a random layout, each agent in turn evaluates every other candidate of its own set with the
 other agents fixed (one batched oracle call) and moves to the best one if it is strictly better.
 A restart stops at a *person-by-person optimum*: once every agent has been checked since the last
-move without improving (no single agent can improve alone). ``restarts`` random starts share the
-budget (each gets an equal share of what is left, so the budget of a restart that converges early
-passes to the later ones), and the best layout found is returned.
+move without improving (no single agent can improve alone). Restarts run one after another, each
+with all the budget that is left, until ``restarts`` have run or the budget is spent: a small
+budget goes to one descent that can converge rather than to several that cannot. The best layout
+found is returned.
 
 Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
 shared mode runs it once on the worst-over-tasks objective (``evaluate_shared``, n_tasks samples
@@ -30,7 +31,7 @@ from solvers.registry import register
 @dataclass(frozen=True)
 class GreedyConfig(PlannerConfig):
     restarts: int = 4
-    """Random starting layouts; the best person-by-person optimum over them is returned."""
+    """Most random starting layouts; the best person-by-person optimum over them is returned."""
 
 
 @register
@@ -58,11 +59,10 @@ class Greedy(Planner):
     def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
         """Best of the restarts: (layout, value, [(sweeps, converged) per restart run])."""
         best_layout, best, runs, spent = None, np.inf, [], 0
-        for r in range(self.config.restarts):
+        for _ in range(self.config.restarts):
             if budget - spent < cost:
                 break
-            share = max(cost, (budget - spent) / (self.config.restarts - r))  # at least one layout
-            layout, value, sweeps, converged, used = _descend(problem, evaluate, cost, share, rng)
+            layout, value, sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng)
             spent += used
             runs.append((sweeps, converged))
             if value < best:

@@ -112,8 +112,9 @@ class NashQConfig(PlannerConfig):
     device: str = "cpu"
     """'cpu' or 'cuda' (only if available)."""
 
-    threads: int = 0
-    """torch intra-op threads during the run (0: leave torch's setting)."""
+    threads: int = 1
+    """torch intra-op threads during the run (0: torch's setting). 1: tiny ops gain nothing from
+    more, and spinning OpenMP threads on a shared, loaded machine slowed updates 40x (measured)."""
 
     save_path: str = ""
     """If set, torch.save(state_dict) of the trained Q-networks to this file."""
@@ -148,6 +149,18 @@ class StackedQ(nn.Module):
         h = torch.relu(torch.baddbmm(self.b2, h, self.w2))
         return torch.baddbmm(self.b3, h, self.w3)
 
+    def chosen(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """Q of the chosen actions only: x (N, B, in), a (N, B) -> (N, B).
+
+        Equal to ``forward(x).gather(2, a[..., None])`` but the output layer computes only the
+        chosen columns (the output layer is most of the network's work on large action sets).
+        """
+        h = torch.relu(torch.baddbmm(self.b0, x, self.w0))
+        h = torch.relu(torch.baddbmm(self.b1, h, self.w1))
+        h = torch.relu(torch.baddbmm(self.b2, h, self.w2))
+        w = self.w3.gather(2, a[:, None, :].expand(-1, self.w3.shape[1], -1))  # (N, H, B)
+        return (h * w.transpose(1, 2)).sum(dim=2) + self.b3[:, 0].gather(1, a)
+
     def one(self, i: int, x: torch.Tensor) -> torch.Tensor:
         """x (B, in) -> Q (B, out) of agent i alone."""
         h = torch.relu(torch.addmm(self.b0[i], x, self.w0[i]))
@@ -162,6 +175,24 @@ class StackedQ(nn.Module):
         net = cls(n, n_in, hidden, state["w3"].shape[2])
         net.load_state_dict(state)
         return net
+
+
+class Update:
+    """clip_grad_value_, AdamW (amsgrad; torch's fused CPU kernel on CPU), soft target update."""
+
+    def __init__(self, params, targets, lr, clip, tau, device):
+        self.params, self.targets, self.clip, self.tau = list(params), list(targets), clip, tau
+        kind = {"fused": True} if device.type == "cpu" else {"foreach": True}
+        self.opt = torch.optim.AdamW(self.params, lr=lr, amsgrad=True, **kind)
+
+    def zero_grad(self):
+        self.opt.zero_grad(set_to_none=True)
+
+    @torch.no_grad()
+    def step(self):
+        torch.nn.utils.clip_grad_value_(self.params, self.clip)
+        self.opt.step()
+        torch._foreach_lerp_(self.targets, self.params, self.tau)
 
 
 def load_weights(path: str) -> StackedQ:
@@ -277,10 +308,10 @@ class _Learner:
         """Huber loss per agent (N,) on replay samples: tasks (N, B), actions (N, B, N), rewards (N, B)."""
         states = self.feats[tasks]
         x = self.inputs(states, self.joint_pos(actions) if self.joint else None)
-        own = actions.gather(2, self.agent_idx[:, None, None].expand(self.n, actions.shape[1], 1))
-        q = self.q(x).gather(2, own).squeeze(2)
+        own = actions.gather(2, self.agent_idx[:, None, None].expand(self.n, actions.shape[1], 1))[..., 0]
+        q = self.q.chosen(x, own)
         with torch.no_grad():
-            target = (1 - alpha) * self.target(x).gather(2, own).squeeze(2) + alpha * rewards
+            target = (1 - alpha) * self.target.chosen(x, own) + alpha * rewards
         return F.smooth_l1_loss(q, target, reduction="none").mean(dim=1)
 
 
@@ -339,9 +370,7 @@ class _QPlanner(Planner):
         try:
             L = _Learner(problem, cfg, self.joint, device, gen)
             L.config_sweeps = cfg.max_sweeps
-            opt = torch.optim.AdamW(L.q.parameters(), lr=cfg.lr, amsgrad=True,
-                                    **({"fused": True} if device.type == "cpu" else {"foreach": True}))
-            params, tparams = list(L.q.parameters()), list(L.target.parameters())
+            opt = Update(L.q.parameters(), L.target.parameters(), cfg.lr, cfg.grad_clip, cfg.tau, device)
             env = FixtureEnv(problem, reward=cfg.reward, shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
             agents = env.possible_agents
 
@@ -356,7 +385,7 @@ class _QPlanner(Planner):
             sweeps_sum, conv_sum, br_calls = 0, 0, 0
             t_oracle = t_select = t_update = 0.0
             steps = 0
-            for episode in range(episodes):
+            for _ in range(episodes):
                 obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
                 loss_sum, n_upd, ret = torch.zeros(n, device=device), 0, 0.0
                 while env.agents:
@@ -391,12 +420,9 @@ class _QPlanner(Planner):
                     if size >= cfg.batch:
                         idx = torch.from_numpy(rng.integers(0, size, (n, cfg.batch))).to(device)
                         loss = L.loss(buf_task[idx], buf_act[idx], buf_rew[idx], cfg.alpha)
-                        opt.zero_grad(set_to_none=True)
+                        opt.zero_grad()
                         loss.sum().backward()
-                        torch.nn.utils.clip_grad_value_(params, cfg.grad_clip)
-                        opt.step()
-                        with torch.no_grad():
-                            torch._foreach_lerp_(tparams, params, cfg.tau)
+                        opt.step()  # clip, AdamW, soft target update
                         loss_sum += loss.detach()
                         n_upd += 1
                     t_select += t1 - t0

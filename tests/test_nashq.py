@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 import torch
 
@@ -81,3 +80,4 @@ def test_bad_device(problem):
         pytest.skip("CUDA present")
     with pytest.raises(PlannerError, match="CUDA"):
         get("nashq")(device="cuda", **SMALL).solve(problem, None, seed=0)
+
