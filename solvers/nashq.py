@@ -209,6 +209,7 @@ class _Learner:
     def __init__(self, problem: Problem, cfg: NashQConfig, joint: bool, device: torch.device,
                  generator: torch.Generator):
         self.n = n = problem.n_agents
+        self.max_sweeps = cfg.max_sweeps
         self.joint = joint and n > 1
         self.device = device
         sizes = [len(s) for s in problem.action_sets]
@@ -284,7 +285,7 @@ class _Learner:
         free = (~fixed).any(dim=0).tolist()
         dirty = list(free)
         sweeps, converged = 0, False
-        while sweeps < self.config_sweeps:
+        while sweeps < self.max_sweeps:
             sweeps += 1
             for i in range(self.n):
                 if not dirty[i]:
@@ -369,7 +370,6 @@ class _QPlanner(Planner):
             torch.set_num_threads(cfg.threads)
         try:
             L = _Learner(problem, cfg, self.joint, device, gen)
-            L.config_sweeps = cfg.max_sweeps
             opt = Update(L.q.parameters(), L.target.parameters(), cfg.lr, cfg.grad_clip, cfg.tau, device)
             env = FixtureEnv(problem, reward=cfg.reward, shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
             agents = env.possible_agents

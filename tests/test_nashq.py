@@ -81,3 +81,11 @@ def test_bad_device(problem):
     with pytest.raises(PlannerError, match="CUDA"):
         get("nashq")(device="cuda", **SMALL).solve(problem, None, seed=0)
 
+
+
+def test_figure4_panels(problem, tmp_path):
+    from bench.marl import figure4
+
+    r = get("iql")(**SMALL).solve(problem, None, seed=0)
+    paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
+    assert len(paths) == 4 and all(p.stat().st_size > 0 for p in paths)
