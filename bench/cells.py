@@ -35,8 +35,10 @@ def fixbench_version() -> str:
 
 
 def problem_for(case: str, material: str | None, agents: int | None, tasks: int | None) -> Problem:
+    """The cell's problem; the worker keeps only the latest one (jobs arrive grouped by problem)."""
     key = (case, material, agents, tasks)
     if key not in _PROBLEMS:
+        _PROBLEMS.clear()
         spec = load_case_spec(case, material, agents)
         spec = spec.with_tasks(task_subset(len(spec.tasks), tasks))
         _PROBLEMS[key] = Problem(spec)

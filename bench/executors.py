@@ -49,7 +49,9 @@ def _worker(conn, threads: int) -> None:  # pragma: no cover - runs in a child p
 class LocalExecutor:
     """A pool of worker processes (spawned: safe with numba and torch threads), one job each.
 
-    Jobs sharing a problem go to the worker that built it, so its FE model and oracle are reused.
+    Jobs sharing a problem go to the worker that built it, so its FE model and oracle are reused;
+    a worker moving on to another problem is replaced by a fresh process, so the memory of the
+    problems it is done with (and the allocator's fragments) goes back to the system.
     """
 
     def __init__(self, workers: int | None = None, timeout: float | None = None):
@@ -82,9 +84,11 @@ class LocalExecutor:
                 for s in slots:
                     if s["job"] is None and queue:
                         i = next((i for i, j in enumerate(queue) if _affinity(j) == s["key"]), 0)
-                        s["job"], s["since"] = queue.pop(i), time.monotonic()
-                        s["key"] = _affinity(s["job"])
-                        s["conn"].send(s["job"])
+                        job = queue.pop(i)
+                        if s["key"] is not None and _affinity(job) != s["key"]:
+                            self._replace(s)  # a fresh process per problem: memory does not pile up
+                        s["job"], s["since"], s["key"] = job, time.monotonic(), _affinity(job)
+                        s["conn"].send(job)
                 busy = [s for s in slots if s["job"] is not None]
                 ready = wait([s["conn"] for s in busy], timeout=0.2)
                 for s in busy:
@@ -113,9 +117,17 @@ class LocalExecutor:
                     s["proc"].kill()
 
     def _replace(self, slot: dict) -> None:
-        """Kill a slot's worker and start a fresh one in its place (the slot becomes idle)."""
-        slot["proc"].kill()
-        slot["proc"].join()
+        """Stop a slot's worker (politely when idle) and start a fresh one (the slot becomes idle)."""
+        if slot["job"] is None:
+            try:
+                slot["conn"].send(None)
+            except OSError:
+                pass
+            slot["proc"].join(timeout=5)
+        if slot["proc"].is_alive():
+            slot["proc"].kill()
+            slot["proc"].join()
+        slot["conn"].close()
         slot.update(self._start())
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import math
 import pickle
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -30,9 +31,21 @@ from cases.fem import PlateModel
 from cases.oracle import Oracle
 from cases.spec import CaseSpec, load_case_spec
 
-#: models and oracles are cached per (case, material, mesh scale, tasks, candidates) in a process
-_MODELS: dict[str, PlateModel] = {}
-_ORACLES: dict[str, Oracle] = {}
+#: models and oracles are cached per spec content in a process; only the most recently used few
+#: are kept (a benchmark worker moves from problem to problem; memory must not grow with them)
+CACHE_SIZE = 3
+_MODELS: OrderedDict[str, PlateModel] = OrderedDict()
+_ORACLES: OrderedDict[str, Oracle] = OrderedDict()
+
+
+def _cached(cache: OrderedDict, key: str, build):
+    if key in cache:
+        cache.move_to_end(key)
+    else:
+        cache[key] = build()
+        while len(cache) > CACHE_SIZE:
+            cache.popitem(last=False)
+    return cache[key]
 
 
 @dataclass(frozen=True)
@@ -80,17 +93,11 @@ class Problem:
 
     @cached_property
     def model(self) -> PlateModel:
-        key = self._key()
-        if key not in _MODELS:
-            _MODELS[key] = PlateModel(self.spec)
-        return _MODELS[key]
+        return _cached(_MODELS, self._key(), lambda: PlateModel(self.spec))
 
     @cached_property
     def oracle(self) -> Oracle:
-        key = self._key()
-        if key not in _ORACLES:
-            _ORACLES[key] = Oracle(self.model, self.candidates)
-        return _ORACLES[key]
+        return _cached(_ORACLES, self._key(), lambda: Oracle(self.model, self.candidates))
 
     def check_layouts(self, layouts) -> np.ndarray:
         """Layouts as an (L, n_agents) int array, each entry from its agent's own set."""
