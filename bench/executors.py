@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from multiprocessing.connection import wait
 
+import psutil
+
 from bench.cells import execute
 
 Job = tuple  # ("reference", args) | ("cell", (cell, reference))
@@ -50,14 +52,22 @@ class LocalExecutor:
     """A pool of worker processes (spawned: safe with numba and torch threads), one job each.
 
     Jobs sharing a problem go to the worker that built it, so its FE model and oracle are reused;
-    a worker moving on to another problem is replaced by a fresh process, so the memory of the
-    problems it is done with (and the allocator's fragments) goes back to the system.
+    a worker moving on to another problem while holding more than ``recycle_mb`` of memory is
+    replaced by a fresh process, so finished problems (and allocator fragments) do not pile up.
     """
 
-    def __init__(self, workers: int | None = None, timeout: float | None = None):
+    def __init__(self, workers: int | None = None, timeout: float | None = None, recycle_mb: float = 700.0):
         self.workers = max(1, workers or os.cpu_count() or 1)
         self.timeout = timeout
+        self.recycle_mb = recycle_mb
         self.ctx = mp.get_context("spawn")
+
+    def _too_big(self, slot: dict) -> bool:
+        """Whether a worker's resident memory passed ``recycle_mb`` (it is then replaced between problems)."""
+        try:
+            return psutil.Process(slot["proc"].pid).memory_info().rss > self.recycle_mb * 2**20
+        except psutil.Error:
+            return False
 
     def _start(self):
         parent, child = self.ctx.Pipe()
@@ -85,8 +95,8 @@ class LocalExecutor:
                     if s["job"] is None and queue:
                         i = next((i for i, j in enumerate(queue) if _affinity(j) == s["key"]), 0)
                         job = queue.pop(i)
-                        if s["key"] is not None and _affinity(job) != s["key"]:
-                            self._replace(s)  # a fresh process per problem: memory does not pile up
+                        if s["key"] is not None and _affinity(job) != s["key"] and self._too_big(s):
+                            self._replace(s)  # a fresh process: memory does not pile up
                         s["job"], s["since"], s["key"] = job, time.monotonic(), _affinity(job)
                         s["conn"].send(job)
                 busy = [s for s in slots if s["job"] is not None]
