@@ -107,20 +107,21 @@ def load_results(root: str | Path) -> pd.DataFrame:
     return df.sort_values(["case", "material", "planner", "seed"], kind="stable").reset_index(drop=True)
 
 
-def load_traces(root: str | Path) -> pd.DataFrame:
-    """All anytime traces with their cell id."""
+def _load_parquets(root: str | Path, folder: str) -> pd.DataFrame:
+    """Every cell's Parquet file in ``DIR/folder`` as one frame with a ``cell`` column."""
     frames = []
-    for p in sorted((Path(root) / "traces").glob("*.parquet")):
+    for p in sorted((Path(root) / folder).glob("*.parquet")):
         df = pd.read_parquet(p)
         df["cell"] = p.stem
         frames.append(df)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def load_traces(root: str | Path) -> pd.DataFrame:
+    """All anytime traces (task, task_samples, samples, best) with their cell id."""
+    return _load_parquets(root, "traces")
 
 
 def load_curves(root: str | Path) -> pd.DataFrame:
-    frames = []
-    for p in sorted((Path(root) / "curves").glob("*.parquet")):
-        df = pd.read_parquet(p)
-        df["cell"] = p.stem
-        frames.append(df)
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    """All learners' training curves (curve, index, value) with their cell id."""
+    return _load_parquets(root, "curves")
