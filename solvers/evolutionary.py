@@ -117,7 +117,18 @@ class _EvolutionaryPlanner(Planner):
 
 
 @dataclass(frozen=True)
-class GAConfig(PlannerConfig):
+class EvolutionConfig(PlannerConfig):
+    """Budget handling shared by the population-based planners."""
+
+    min_generations: int = 10
+    """A small budget shrinks the population to at most allowance / min_generations (2 at least)."""
+
+    evals_per_task: int = 2000
+    """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
+
+
+@dataclass(frozen=True)
+class GAConfig(EvolutionConfig):
     pop_size: int = 200
     """Population size; also the offspring per generation (layouts per counted call)."""
 
@@ -129,12 +140,6 @@ class GAConfig(PlannerConfig):
 
     mutation_eta: float = 3.0
     """Polynomial-mutation distribution index: small makes large jumps in a gene."""
-
-    min_generations: int = 10
-    """A small budget shrinks the population to at most allowance / min_generations (2 at least)."""
-
-    evals_per_task: int = 2000
-    """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
 
 
 @register
@@ -163,7 +168,7 @@ class GeneticPlanner(_EvolutionaryPlanner):
 
 
 @dataclass(frozen=True)
-class PSOConfig(PlannerConfig):
+class PSOConfig(EvolutionConfig):
     pop_size: int = 200
     """Swarm size (particles); also the layouts per counted call."""
 
@@ -181,12 +186,6 @@ class PSOConfig(PlannerConfig):
 
     max_velocity_rate: float = 0.2
     """Largest step per generation as a fraction of the agent's box side."""
-
-    min_generations: int = 10
-    """A small budget shrinks the population to at most allowance / min_generations (2 at least)."""
-
-    evals_per_task: int = 2000
-    """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
 
 
 @register
