@@ -99,10 +99,13 @@ class Oracle:
         """How many compliance columns the candidates have (rows of all active fields)."""
         return sum(fo.per for fo in self.fields.values()) * len(np.unique(cand))
 
-    def evaluate(self, task: int, layouts: np.ndarray) -> np.ndarray:
-        """Maxima over the measurement points of each layout: (L, 5) = |ux|, |uy|, |w|, |u|, |u_xy|.
+    def evaluate(self, task: int, layouts: np.ndarray, soft_power: float | None = None) -> np.ndarray:
+        """Per layout over the measurement points: (L, 6) = max |ux|, |uy|, |w|, |u|, |u_xy|, soft |u|.
 
-        |u| is the full magnitude, |u_xy| the in-plane magnitude sqrt(ux^2 + uy^2).
+        |u| is the full magnitude, |u_xy| the in-plane magnitude sqrt(ux^2 + uy^2). With
+        ``soft_power`` p, the last column is the power mean (mean over the points of |u|^p)^(1/p), a
+        smooth stand-in for the max (p = 1: the mean; p -> inf: the max) from the same solve; NaN
+        without it (it costs a power per point).
         """
         layouts = np.ascontiguousarray(np.atleast_2d(layouts), dtype=np.int64)
         self.ensure(layouts)
@@ -118,13 +121,13 @@ class Oracle:
             else:
                 c, h, d, m, r = fo.C, fo.H, fo.d0[task], fo.m0[task], fo.rows(layouts)
             args += [c, h, d, m, np.ascontiguousarray(r)]
-        out = np.empty((len(layouts), 6))
-        _evaluate(*args, self.n_meas, out)
-        bad = out[:, 5] > 0
+        out = np.empty((len(layouts), 7))
+        _evaluate(*args, self.n_meas, float(soft_power or 0.0), out)
+        bad = out[:, 6] > 0
         if bad.any():
             raise NumericalError(f"layout {layouts[np.argmax(bad)].tolist()} of task {task} gives a "
                                  "singular constraint system (coincident or overlapping pads?)")
-        return out[:, :5]
+        return out[:, :6]
 
     def compliance(self, field: str, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Coupling rows C and measurement influence H of candidates (what a QP planner reads)."""
@@ -192,8 +195,20 @@ def _response(C, H, d0, m0, rows):
     return u, ok
 
 
+@numba.njit(cache=True)
+def _power_mean(uv, w, n_meas, power, top):
+    """(mean over the points of |u|^p)^(1/p), scaled by the max ``top`` so that no power overflows."""
+    if top == 0.0 or n_meas == 0:
+        return 0.0
+    s = 0.0
+    for p in range(n_meas):
+        r2 = (uv[p] ** 2 + uv[n_meas + p] ** 2 + w[p] ** 2) / (top * top)
+        s += r2 ** (0.5 * power)
+    return top * (s / n_meas) ** (1.0 / power)
+
+
 @numba.njit(parallel=True, cache=True)
-def _evaluate(Cb, Hb, db, mb, rb, Cm, Hm, dm, mm, rm, n_meas, out):
+def _evaluate(Cb, Hb, db, mb, rb, Cm, Hm, dm, mm, rm, n_meas, power, out):
     for ell in numba.prange(rb.shape[0]):
         w, ok_b = _response(Cb, Hb, db, mb, rb[ell])
         uv, ok_m = _response(Cm, Hm, dm, mm, rm[ell])
@@ -210,7 +225,8 @@ def _evaluate(Cb, Hb, db, mb, rb, Cm, Hm, dm, mm, rm, n_meas, out):
         out[ell, 2] = aw
         out[ell, 3] = np.sqrt(au)
         out[ell, 4] = np.sqrt(axy)
-        out[ell, 5] = 0.0 if (ok_b and ok_m) else 1.0
+        out[ell, 5] = _power_mean(uv, w, n_meas, power, np.sqrt(au)) if power > 0 else np.nan
+        out[ell, 6] = 0.0 if (ok_b and ok_m) else 1.0
 
 
 __all__ = ["Oracle", "FieldOracle", "COMPONENTS"]

@@ -50,13 +50,14 @@ def _cached(cache: OrderedDict, key: str, build):
 
 @dataclass(frozen=True)
 class Deformation:
-    """Maximum deformation over the measurement points of a batch of layouts (metres)."""
+    """Deformation over the measurement points of a batch of layouts (metres): maxima and a soft max."""
 
     max_ux: np.ndarray
     max_uy: np.ndarray
     max_w: np.ndarray
     max_u: np.ndarray  # magnitude sqrt(ux^2 + uy^2 + w^2): the objective planners minimise
     max_uxy: np.ndarray  # in-plane magnitude sqrt(ux^2 + uy^2)
+    soft_u: np.ndarray  # power mean of |u| over the points when asked for (Oracle.evaluate), else NaN
     reward_gaussian: np.ndarray
     reward_bell: np.ndarray
 
@@ -120,8 +121,8 @@ class Problem:
     def deformation(self, maxima: np.ndarray) -> Deformation:
         """Rewards use the in-plane magnitude as the literature's "x" and w as its "z"."""
         sx, sz = self.spec.reward_sigma
-        ux, uy, w, u, uxy = maxima.T
-        return Deformation(ux, uy, w, u, uxy, rewards.gaussian(uxy, w, sx, sz), rewards.bell(uxy, w))
+        ux, uy, w, u, uxy, soft = maxima.T
+        return Deformation(ux, uy, w, u, uxy, soft, rewards.gaussian(uxy, w, sx, sz), rewards.bell(uxy, w))
 
     def evaluator(self, budget: int | None = None) -> Evaluator:
         return Evaluator(self, budget)
@@ -131,12 +132,13 @@ class Problem:
         layout = self.check_layouts(layout)[0]
         return self.model.solve_direct(self.check_task(task), self.candidates[layout])
 
-    def direct_deformation(self, task: int, layout) -> Deformation:
+    def direct_deformation(self, task: int, layout, soft_power: float | None = None) -> Deformation:
         v = self.model.measure(self.solve_direct(task, layout))
         inplane = np.sqrt(v["ux"] ** 2 + v["uy"] ** 2)
         mag = np.sqrt(inplane**2 + v["w"] ** 2)
+        soft = np.mean(mag**soft_power) ** (1 / soft_power) if soft_power else np.nan
         m = np.array([[np.abs(v["ux"]).max(), np.abs(v["uy"]).max(), np.abs(v["w"]).max(), mag.max(),
-                       inplane.max()]])
+                       inplane.max(), soft]])
         return self.deformation(m)
 
 
@@ -165,12 +167,15 @@ class Evaluator:
         self.afford(n)
         self.samples += n
 
-    def evaluate(self, task: int, layouts) -> Deformation:
-        """Max deformation of each layout for ``task``; costs one sample per layout."""
+    def evaluate(self, task: int, layouts, soft_power: float | None = None) -> Deformation:
+        """Deformation of each layout for ``task``; costs one sample per layout.
+
+        ``soft_power`` p also fills ``soft_u``, the power mean of |u| (same solve, no extra sample).
+        """
         p = self.problem
         task, layouts = p.check_task(task), p.check_layouts(layouts)
         self.charge(len(layouts))
-        return p.deformation(p.oracle.evaluate(task, layouts))
+        return p.deformation(p.oracle.evaluate(task, layouts, soft_power))
 
     def compliance(self, field: str, candidates) -> tuple[np.ndarray, np.ndarray]:
         """Compliance data of candidates (coupling rows C, measurement influence H).

@@ -64,8 +64,8 @@ class TracedEvaluator(Evaluator):
         self.shared_best, self.shared_layout = np.inf, None
         self.trace: list[tuple[int, int, int, float]] = []
 
-    def evaluate(self, task: int, layouts) -> Deformation:
-        d = super().evaluate(task, layouts)
+    def evaluate(self, task: int, layouts, soft_power: float | None = None) -> Deformation:
+        d = super().evaluate(task, layouts, soft_power)
         self.task_samples[task] += len(d.max_u)
         i = int(np.argmin(d.max_u))
         if d.max_u[i] < self.best[task]:
@@ -76,16 +76,28 @@ class TracedEvaluator(Evaluator):
 
     def evaluate_shared(self, layouts) -> np.ndarray:
         """Worst max deformation over all tasks of each layout; costs n_tasks samples per layout."""
+        return self.evaluate_shared_soft(layouts)[0]
+
+    def evaluate_shared_soft(self, layouts, soft_power: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(worst max over tasks, soft worst) of each layout; costs n_tasks samples per layout.
+
+        The soft worst is the power mean over tasks and points, (mean_t soft_u_t^p)^(1/p), from the
+        same solves (NaN without ``soft_power``).
+        """
         layouts = self.problem.check_layouts(layouts)
         self.afford(len(layouts) * self.problem.n_tasks)  # all or nothing; charged task by task
-        worst = np.zeros(len(layouts))
-        for t in range(self.problem.n_tasks):
-            worst = np.maximum(worst, self.evaluate(t, layouts).max_u)
+        per_task = [self.evaluate(t, layouts, soft_power) for t in range(self.problem.n_tasks)]
+        worst = np.max([d.max_u for d in per_task], axis=0)
+        soft = np.full(len(layouts), np.nan)
+        if soft_power:
+            s = np.array([d.soft_u for d in per_task])
+            top = np.where(worst > 0, worst, 1.0)  # scale by the max so that no power overflows
+            soft = top * np.mean((s / top) ** soft_power, axis=0) ** (1 / soft_power)
         i = int(np.argmin(worst))
         if worst[i] < self.shared_best:
             self.shared_best, self.shared_layout = float(worst[i]), layouts[i].copy()
         self.trace.append((-1, self.samples, self.samples, self.shared_best))
-        return worst
+        return worst, soft
 
 
 @dataclass

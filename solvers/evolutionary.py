@@ -20,8 +20,20 @@ Encodings:
   and a velocity in index space would jump between rows; in the plane, neighbours in space are
   neighbours in the search, which is what the deformation field is smooth in.
 
+Fitness: by default the *soft max* of |u|, the power mean over the measurement points with
+``soft_power`` (same solve, no extra sample; why: see :mod:`solvers.greedy`), the max itself with
+``soft_power = 0``. What is returned and scored is still the layout with the lowest true max.
+Measured at 2 % of the joint space (3 seeds): on fan_small the max as fitness left GA +6.7 % and
+PSO +35 % above the optimum, the soft max (p = 4) +0.4 % and +0.1 %.
+
+Restarts: a run that has not improved its best fitness for ``stall_generations`` generations
+(pymoo's ``RobustTermination`` over ``SingleObjectiveSpaceTermination``) starts again with a fresh
+population on what is left of its allowance. A swarm collapses onto one layout long before a
+large allowance is spent (PSO on bus_panel_small stopped improving after ~15 of 210 generations
+and ended 2-12 % above the optimum; with restarts, 0-1 %).
+
 Budget: a run gets an allowance of layouts (per-task mode: each task's ``split_budget`` share;
-shared mode: the budget divided by ``n_tasks``) and pymoo's ``("n_eval", allowance)`` termination.
+shared mode: the budget divided by ``n_tasks``) and pymoo's ``MaximumFunctionCallTermination``.
 A generation that would pass the allowance is cut: its first individuals, up to what fits, are
 evaluated and the rest get ``F = +inf`` without being evaluated or charged; pymoo's counter then
 reaches the allowance and the run ends. So the samples spent never exceed the budget. A small
@@ -32,8 +44,9 @@ task (per task, or for the shared layout) raises :class:`~solvers.base.PlannerEr
 can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
 
 Per-task mode returns ``ev.best_layout``, the best layout ever evaluated on each task (not the
-final population); shared mode returns ``ev.shared_layout``. ``info`` has ``generations`` and
-``n_eval`` (samples spent) per optimisation run: one run per task, or one run in shared mode.
+final population); shared mode returns ``ev.shared_layout``. ``info`` has ``generations``,
+``restarts`` and ``n_eval`` (samples spent) per optimisation run: one run per task, or one run in
+shared mode.
 """
 
 from __future__ import annotations
@@ -47,13 +60,16 @@ from pymoo.algorithms.soo.nonconvex.ga import GA
 from pymoo.algorithms.soo.nonconvex.pso import PSO
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.problem import Problem as PymooProblem
+from pymoo.core.termination import TerminateIfAny
 from pymoo.operators.crossover.sbx import SBX
 from pymoo.operators.mutation.pm import PM
 from pymoo.operators.repair.rounding import RoundingRepair
 from pymoo.operators.sampling.lhs import LHS
 from pymoo.operators.sampling.rnd import IntegerRandomSampling
 from pymoo.optimize import minimize
-from pymoo.termination import get_termination
+from pymoo.termination.ftol import SingleObjectiveSpaceTermination
+from pymoo.termination.max_eval import MaximumFunctionCallTermination
+from pymoo.termination.robust import RobustTermination
 from scipy.spatial import cKDTree
 
 from cases.problem import Problem
@@ -92,28 +108,48 @@ class _EvolutionaryPlanner(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
+        p = cfg.soft_power or None
         xl, xu, vtype, decode = self._encoding(problem)
         if mode == "shared":
             require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            runs = [(ev.evaluate_shared, cfg.evals_per_task if ev.budget is None
-                     else int(ev.remaining // problem.n_tasks))]
+            runs = [(lambda layouts: _pick(ev.evaluate_shared_soft(layouts, p), p),
+                     cfg.evals_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks))]
         else:
             require_budget(self.name, ev.remaining, problem.n_tasks, "one layout per task")
             shares = split_budget(ev.budget, problem.n_tasks, cfg.evals_per_task)
-            runs = [(lambda layouts, t=t: ev.evaluate(t, layouts).max_u, n) for t, n in enumerate(shares)]
-        generations, n_eval = [], []
+            runs = [(lambda layouts, t=t: _pick(_pair(ev.evaluate(t, layouts, p)), p), n)
+                    for t, n in enumerate(shares)]
+        generations, n_eval, restarts = [], [], []
         for score, allowance in runs:
-            spent = ev.samples
-            size = max(2, min(cfg.pop_size, allowance // cfg.min_generations))
-            res = minimize(_LayoutProblem(xl, xu, vtype, decode, score, allowance), self._algorithm(size),
-                           get_termination("n_eval", allowance), seed=int(rng.integers(2**31)),
-                           verbose=False)
-            generations.append(int(res.algorithm.n_gen))
+            spent, left, gens, starts = ev.samples, allowance, 0, 0
+            while left > 0:
+                size = max(2, min(cfg.pop_size, left // cfg.min_generations))
+                problem_ = _LayoutProblem(xl, xu, vtype, decode, score, left)
+                stall = RobustTermination(SingleObjectiveSpaceTermination(0.0, only_feas=False),
+                                          period=cfg.stall_generations or 1)
+                budget_end = MaximumFunctionCallTermination(left)
+                termination = TerminateIfAny(budget_end, stall) if cfg.stall_generations else budget_end
+                res = minimize(problem_, self._algorithm(size), termination, seed=int(rng.integers(2**31)),
+                               verbose=False, copy_termination=False)
+                gens, starts, left = gens + int(res.algorithm.n_gen), starts + 1, problem_.left
+                if not (cfg.stall_generations and stall.has_terminated()):
+                    break  # the budget is spent, or the algorithm stopped itself (nothing new to breed)
+            generations.append(gens)
             n_eval.append(ev.samples - spent)
-        info = {"generations": generations, "n_eval": n_eval}
+            restarts.append(starts - 1)
+        info = {"generations": generations, "n_eval": n_eval, "restarts": restarts}
         if mode == "shared":
             return np.tile(ev.shared_layout, (problem.n_tasks, 1)), info
         return ev.best_layout.copy(), info
+
+
+def _pair(d) -> tuple[np.ndarray, np.ndarray]:
+    return d.max_u, d.soft_u
+
+
+def _pick(values: tuple[np.ndarray, np.ndarray], power: float | None) -> np.ndarray:
+    """The fitness: the soft max with a power, else the max."""
+    return values[1] if power else values[0]
 
 
 @dataclass(frozen=True)
@@ -125,6 +161,12 @@ class EvolutionConfig(PlannerConfig):
 
     evals_per_task: int = 2000
     """Layouts per run (per task, or shared layouts) when the budget is unlimited."""
+
+    soft_power: float = 4.0
+    """Fitness: the power mean of |u| with this exponent (a soft max, see greedy); 0: the max."""
+
+    stall_generations: int = 30
+    """Restart with a fresh population after this many generations without a better best (0: never)."""
 
 
 @dataclass(frozen=True)

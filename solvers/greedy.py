@@ -5,8 +5,20 @@ other agents fixed (one batched oracle call) and moves to the best one if it is 
 A restart stops at a *person-by-person optimum*: once every agent has been checked since the last
 move without improving (no single agent can improve alone). Restarts run one after another, each
 with all the budget that is left, until ``restarts`` have run or the budget is spent: a small
-budget goes to one descent that can converge rather than to several that cannot. The best layout
-found is returned.
+budget goes to one descent that can converge rather than to several that cannot. The layout with
+the lowest true max among all evaluated is returned.
+
+What the moves minimise: the *soft max*, the power mean of |u| over the measurement points,
+(mean |u|^p)^(1/p) with ``soft_power`` p, from the same solve (no extra sample): the aggregation
+structural optimisation uses for max-stress constraints (Kreisselmeier-Steinhauser style).
+Why not the max itself: under a max, regions held by different agents trade the max between
+them. On the fan the three blades, loaded alike and coupled through the hub, hold nearly equal
+maxima; moving one blade's fixture to where it helps that blade raises the other blades' maxima a
+little, so the max goes up and no single agent moves. Plain best response then stops far from the
+optimum (measured on fan_small at 2 % of the joint space: +303 % mean gap; 0.5 % of descents from
+random starts end within 5 %). The soft max credits the improved blade, and the agents follow each
+other to the symmetric optimum (every start within 5 % for 2 <= p <= 16). ``soft_power = 0``
+descends on the max itself.
 
 Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
 shared mode runs it once on the worst-over-tasks objective (``evaluate_shared``, n_tasks samples
@@ -30,8 +42,11 @@ from solvers.registry import register
 
 @dataclass(frozen=True)
 class GreedyConfig(PlannerConfig):
-    restarts: int = 4
-    """Most random starting layouts; the best person-by-person optimum over them is returned."""
+    restarts: int = 32
+    """Most descents from random starts; fewer run when the budget is spent first."""
+
+    soft_power: float = 4.0
+    """Exponent p of the power mean the moves minimise (module doc); 0 descends on the max itself."""
 
 
 @register
@@ -41,37 +56,38 @@ class Greedy(Planner):
     Config = GreedyConfig
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
-        T = problem.n_tasks
+        T, p = problem.n_tasks, self.config.soft_power or None
         if mode == "shared":
             require_budget(self.name, ev.remaining, T, "one shared layout on every task")
-            layout, _, runs = self._restarts(problem, ev.evaluate_shared, T, ev.remaining, rng)
-            return np.tile(layout, (T, 1)), _info([runs])
+
+            def shared(L):
+                worst, soft = ev.evaluate_shared_soft(L, p)
+                return soft if p else worst
+            runs = self._restarts(problem, shared, T, ev.remaining, rng)
+            return np.tile(ev.shared_layout, (T, 1)), _info([runs])
         require_budget(self.name, ev.remaining, T, "one layout per task")
-        layouts = np.zeros((T, problem.n_agents), dtype=np.int64)
         all_runs = []
         for task, budget in enumerate(split_budget(ev.budget, T, math.inf)):
             def evaluate(L, task=task):
-                return ev.evaluate(task, L).max_u
-            layouts[task], _, runs = self._restarts(problem, evaluate, 1, budget, rng)
-            all_runs.append(runs)
-        return layouts, _info(all_runs)
+                d = ev.evaluate(task, L, p)
+                return d.soft_u if p else d.max_u
+            all_runs.append(self._restarts(problem, evaluate, 1, budget, rng))
+        return ev.best_layout.copy(), _info(all_runs)
 
     def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
-        """Best of the restarts: (layout, value, [(sweeps, converged) per restart run])."""
-        best_layout, best, runs, spent = None, np.inf, [], 0
+        """Run restarts within ``budget``: [(sweeps, converged) per restart]. ``ev`` keeps the best."""
+        runs, spent = [], 0
         for _ in range(self.config.restarts):
             if budget - spent < cost:
                 break
-            layout, value, sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng)
+            sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng)
             spent += used
             runs.append((sweeps, converged))
-            if value < best:
-                best_layout, best = layout, value
-        return best_layout, best, runs
+        return runs
 
 
 def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
-    """One restart: (layout, value, sweeps, converged, samples spent) within ``budget`` samples."""
+    """One restart: (sweeps, converged, samples spent) within ``budget`` samples."""
     n = problem.n_agents
     layout = random_layouts(problem, rng, 1)[0]
     value = evaluate(layout[None])[0]
@@ -96,7 +112,7 @@ def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.rando
             break
         since += 1
         a = (a + 1) % n
-    return layout, value, math.ceil(checks / n), since >= n, spent
+    return math.ceil(checks / n), since >= n, spent
 
 
 def _info(runs: list[list[tuple[int, bool]]]) -> dict:
