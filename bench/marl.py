@@ -1,7 +1,8 @@
 """MARL benchmark: the seed's Figure 4, the speed of the reference protocol, and small-case optima.
 
     python -m bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
-    python -m bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--json]
+    python -m bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
+                                 [--json] [--figures DIR]
     python -m bench.marl table   [--episodes 100] [--seed 0] [--json]
 
 ``figure4`` draws (a) step reward against step, (b) episodic return and (c) episodic regret (the
@@ -135,8 +136,12 @@ def prepare(problem: Problem) -> float:
 
 
 def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None = None,
-          episodes: int = 100, seed: int = 0, threads: int = 0) -> dict:
-    """Run the reference protocol once; wall time and its split (oracle / selection / updates)."""
+          episodes: int = 100, seed: int = 0, threads: int = 0, figures: str | None = None) -> dict:
+    """Run the reference protocol once; wall time and its split (oracle / selection / updates).
+
+    With ``figures`` (a directory), the same run's Figure 4 panels and its training record
+    (``training.json``) are written there too.
+    """
     from solvers.registry import get
 
     problem = load_problem(case, agents=agents)
@@ -145,6 +150,9 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
     res = get(planner)(episodes=episodes, threads=threads).solve(problem, None, seed=seed)
     wall = time.perf_counter() - t
     i = res.info
+    if figures:
+        figure4({f"{planner} N={problem.n_agents}": res}, figures)
+        (Path(figures) / "training.json").write_text(json.dumps(i))
     return {"case": case, "planner": planner, "agents": problem.n_agents, "tasks": problem.n_tasks,
             "episodes": i["episodes_run"], "samples": res.samples, "oracle_setup_s": setup,
             "wall_s": wall, "plan_s": i["time_total_s"], "oracle_s": i["time_oracle_s"],
@@ -214,6 +222,7 @@ def main(argv=None) -> None:
     s.add_argument("--episodes", type=int, default=100)
     s.add_argument("--threads", type=int, default=0)
     s.add_argument("--json", action="store_true")
+    s.add_argument("--figures", help="also write this run's Figure 4 panels into this directory")
     t = sub.add_parser("table")
     t.add_argument("--episodes", type=int, default=100)
     t.add_argument("--seed", type=int, default=0)
@@ -232,7 +241,8 @@ def main(argv=None) -> None:
         for p in figure4(results, args.out):
             print(f"wrote {p}")
     elif args.cmd == "speed":
-        res = speed(args.case, args.planner, args.agents, args.episodes, threads=args.threads)
+        res = speed(args.case, args.planner, args.agents, args.episodes, threads=args.threads,
+                    figures=args.figures)
         print(json.dumps(res, indent=1) if args.json else
               "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()))
     else:

@@ -109,7 +109,7 @@ def _list(r: Reader, key: str, kind, default=...) -> list:
 def load_matrix(path: str | Path) -> Matrix:
     """Read and check a matrix file; every problem is a one-line CaseError (file, key, problem)."""
     from solvers.config import apply_sets
-    from solvers.registry import get
+    from solvers.registry import get, names
 
     path = Path(path)
     source = str(path)
@@ -158,16 +158,20 @@ def load_matrix(path: str | Path) -> Matrix:
             item = {"name": item}
         pr = Reader(item, source, key)
         pname = pr.text("name")
-        try:
-            cls = get(pname)
-        except Exception as exc:  # PlannerError: unknown name or import failure
-            raise CaseError(source, f"{key}.name", str(exc)) from None
         cfg = pr.raw("config", {}, (dict,))
-        sets = [f"{k}={_as_text(v)}" for k, v in cfg.items()]
-        try:
-            overrides = apply_sets(cls.Config, sets, pname)
-        except Exception as exc:
-            raise CaseError(source, f"{key}.config", str(exc)) from None
+        overrides = {}
+        if cfg or ":" in pname:  # the class is needed; a known name alone is checked without importing it
+            try:
+                cls = get(pname)
+            except Exception as exc:  # PlannerError: unknown name or import failure
+                raise CaseError(source, f"{key}.name", str(exc)) from None
+            sets = [f"{k}={_as_text(v)}" for k, v in cfg.items()]
+            try:
+                overrides = apply_sets(cls.Config, sets, pname)
+            except Exception as exc:
+                raise CaseError(source, f"{key}.config", str(exc)) from None
+        elif pname not in names():
+            raise CaseError(source, f"{key}.name", f"unknown planner '{pname}' (known: {', '.join(names())})")
         budget = pr.raw("budget", "matrix", (int, str))
         if budget == "unlimited":
             budget = None

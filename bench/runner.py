@@ -77,10 +77,6 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         write_json_atomic(store.reference_path(key), ref)
         bar.update()
 
-    if ref_jobs:
-        ex.run(ref_jobs, on_reference)
-    bar.set_description("cells")
-
     def on_cell(job, result, error):
         cell = job[1][0]
         if result is None:
@@ -94,8 +90,14 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         bar.set_postfix(failed=summary["failed"])
         bar.update()
 
-    jobs = [("cell", (c, references.get(reference_key(*c.problem_key)))) for c in todo]
-    ex.run(jobs, on_cell)
+    try:
+        if ref_jobs:
+            ex.run(ref_jobs, on_reference)
+        bar.set_description("cells")
+        jobs = [("cell", (c, references.get(reference_key(*c.problem_key)))) for c in todo]
+        ex.run(jobs, on_cell)  # the same workers: their last problem's model is still built
+    finally:
+        ex.close()
     bar.close()
     return summary
 

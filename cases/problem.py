@@ -38,13 +38,23 @@ _MODELS: OrderedDict[str, PlateModel] = OrderedDict()
 _ORACLES: OrderedDict[str, Oracle] = OrderedDict()
 
 
+def set_cache_size(n: int) -> None:
+    """Keep at most ``n`` models and oracles per process (a benchmark worker, which gets its jobs
+    grouped by problem, keeps 1: a bus panel model and oracle hold ~115 MB)."""
+    global CACHE_SIZE
+    CACHE_SIZE = max(1, int(n))
+    for cache in (_MODELS, _ORACLES):
+        while len(cache) > CACHE_SIZE:
+            cache.popitem(last=False)
+
+
 def _cached(cache: OrderedDict, key: str, build):
     if key in cache:
         cache.move_to_end(key)
     else:
-        cache[key] = build()
-        while len(cache) > CACHE_SIZE:
+        while len(cache) >= CACHE_SIZE:  # evict first: the old and the new never live together
             cache.popitem(last=False)
+        cache[key] = build()
     return cache[key]
 
 

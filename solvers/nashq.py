@@ -42,6 +42,7 @@ import math
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -363,11 +364,12 @@ class _QPlanner(Planner):
         seed = int(rng.integers(2**31 - 1))
         torch.manual_seed(seed)
         gen = torch.Generator().manual_seed(seed)
-        threads = torch.get_num_threads()
+        threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
         det = torch.are_deterministic_algorithms_enabled()
         torch.use_deterministic_algorithms(True, warn_only=True)
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
+        numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
         try:
             L = _Learner(problem, cfg, self.joint, device, gen)
             opt = Update(L.q.parameters(), L.target.parameters(), cfg.lr, cfg.grad_clip, cfg.tau, device)
@@ -441,6 +443,7 @@ class _QPlanner(Planner):
                 torch.save(L.q.state_dict(), cfg.save_path)
         finally:
             torch.set_num_threads(threads)
+            numba.set_num_threads(numba_threads)
             torch.use_deterministic_algorithms(det)
 
         # training record -------------------------------------------------------------------------

@@ -2,6 +2,11 @@
 
 Names are unique: registering a second planner under a taken name is an error (as BenchMARL and
 nevergrad do), so a plugin can never silently replace a built-in.
+
+Built-ins and entry points are imported when first asked for by name (:func:`get`), not all at
+once: a process that runs only ``greedy`` never imports PyTorch or cvxpy, and the benchmark driver,
+which only checks names, stays small. :func:`names` lists every name without importing anything;
+:func:`available` imports them all (for ``fixbench solvers`` and the registry-wide tests).
 """
 
 from __future__ import annotations
@@ -12,8 +17,11 @@ import importlib.metadata
 from solvers.base import Planner, PlannerError
 
 ENTRY_POINT_GROUP = "fixbench.planners"
+#: built-in planner name -> the module that registers it when imported
+BUILTIN = {"random": "solvers.random_search", "exact": "solvers.exact", "greedy": "solvers.greedy",
+           "ga": "solvers.evolutionary", "pso": "solvers.evolutionary", "qp": "solvers.qp",
+           "cbr": "solvers.cbr", "nashq": "solvers.nashq", "iql": "solvers.nashq"}
 _REGISTRY: dict[str, type[Planner]] = {}
-_LOADED = False
 
 
 def register(cls: type[Planner]) -> type[Planner]:
@@ -22,6 +30,9 @@ def register(cls: type[Planner]) -> type[Planner]:
         raise PlannerError(f"{cls!r} is not a Planner subclass")
     if not cls.name:
         raise PlannerError(f"planner class {cls.__qualname__} has no name")
+    builtin = BUILTIN.get(cls.name)
+    if builtin is not None and cls.__module__ != builtin:  # checked without importing the built-in
+        raise PlannerError(f"planner name '{cls.name}' is taken by the built-in planner in {builtin}")
     other = _REGISTRY.get(cls.name)
     if other is not None and other is not cls:
         raise PlannerError(f"planner name '{cls.name}' is taken by {other.__module__}.{other.__qualname__}")
@@ -29,26 +40,43 @@ def register(cls: type[Planner]) -> type[Planner]:
     return cls
 
 
-def _load() -> None:
-    """Import the built-in planners and the installed plugins (once)."""
-    global _LOADED
-    if _LOADED:
+def _entry_points() -> dict:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def _import(name: str) -> None:
+    """Import the built-in module or the entry point that provides planner ``name``."""
+    if name in _REGISTRY:
         return
-    _LOADED = True
-    importlib.import_module("solvers.builtin")
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            cls = ep.load()
-        except Exception as exc:  # a broken plugin is reported, never a crash of fixbench
-            raise PlannerError(f"plugin '{ep.name}' ({ep.value}) failed to import: "
-                               f"{type(exc).__name__}: {exc}") from None
-        if _REGISTRY.get(getattr(cls, "name", None)) is not cls:
-            register(cls)
+    if name in BUILTIN:
+        importlib.import_module(BUILTIN[name])
+        return
+    ep = _entry_points().get(name)
+    if ep is not None:
+        _load_entry_point(ep)
+
+
+def _load_entry_point(ep) -> None:
+    try:
+        cls = ep.load()
+    except Exception as exc:  # a broken plugin is reported, never a crash of fixbench
+        raise PlannerError(f"plugin '{ep.name}' ({ep.value}) failed to import: "
+                           f"{type(exc).__name__}: {exc}") from None
+    if _REGISTRY.get(getattr(cls, "name", None)) is not cls:
+        register(cls)
+
+
+def names() -> list[str]:
+    """Every planner name, built-in, plugin or registered, without importing any planner module."""
+    return sorted(set(BUILTIN) | set(_entry_points()) | set(_REGISTRY))
 
 
 def available() -> dict[str, type[Planner]]:
-    """All registered planners by name (built-ins and plugins)."""
-    _load()
+    """All planners by name (built-ins and plugins), each imported (a name clash raises)."""
+    for module in dict.fromkeys(BUILTIN.values()):
+        importlib.import_module(module)
+    for ep in _entry_points().values():
+        _load_entry_point(ep)
     return dict(sorted(_REGISTRY.items()))
 
 
@@ -56,10 +84,10 @@ def get(name: str) -> type[Planner]:
     """A planner class by registered name or by ``package.module:Class``."""
     if ":" in name:
         return load_spec(name)
-    planners = available()
-    if name not in planners:
-        raise PlannerError(f"unknown planner '{name}' (known: {', '.join(planners)})")
-    return planners[name]
+    _import(name)
+    if name not in _REGISTRY:
+        raise PlannerError(f"unknown planner '{name}' (known: {', '.join(names())})")
+    return _REGISTRY[name]
 
 
 def load_spec(spec: str) -> type[Planner]:
@@ -69,7 +97,6 @@ def load_spec(spec: str) -> type[Planner]:
         cls = getattr(importlib.import_module(module), attr)
     except Exception as exc:
         raise PlannerError(f"--planner {spec}: cannot import: {type(exc).__name__}: {exc}") from None
-    _load()
     if _REGISTRY.get(getattr(cls, "name", None)) is not cls:
         register(cls)
     return cls

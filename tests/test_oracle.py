@@ -115,3 +115,19 @@ def test_deterministic():
     a = problem.evaluator().evaluate(2, layouts).max_u
     b = problem.evaluator().evaluate(2, layouts).max_u
     np.testing.assert_array_equal(a, b)
+
+
+def test_cache_size_bounds_the_models_kept():
+    """A benchmark worker keeps one model: building the next one evicts the last one first."""
+    import cases.problem as cp
+
+    saved = cp.CACHE_SIZE
+    try:
+        cp.set_cache_size(1)
+        a, b = load_problem("fan_small"), load_problem("fan_small", material="steel")
+        model_a = a.model
+        assert list(cp._MODELS.values()) == [model_a]
+        model_b = b.model
+        assert list(cp._MODELS.values()) == [model_b]
+    finally:
+        cp.set_cache_size(saved)

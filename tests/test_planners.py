@@ -7,6 +7,9 @@ clear error or a documented best effort: never a crash.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -67,6 +70,26 @@ def test_registry_refuses_a_taken_name():
 
     with pytest.raises(PlannerError, match="'random' is taken"):
         register(Impostor)
+
+
+def test_registry_refuses_a_builtin_name_before_the_builtin_is_imported():
+    """Built-ins are imported lazily; a plugin must not take one's name in the meantime."""
+    code = ("from solvers.base import Planner\nfrom solvers.registry import register\n"
+            "class Impostor(Planner):\n    name = 'nashq'\n"
+            "try:\n    register(Impostor)\nexcept Exception as e:\n    print(e)\n"
+            "import sys\nprint('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "'nashq' is taken by the built-in planner in solvers.nashq" in out
+    assert out.strip().endswith("False")
+
+
+def test_checking_a_matrix_of_builtin_names_imports_no_planner():
+    """The benchmark driver stays small: it checks names without importing PyTorch, cvxpy, pymoo."""
+    code = ("import sys\nfrom bench.matrix import load_matrix\n"
+            "m = load_matrix('bench/matrices/default.toml')\n"
+            "print(len(m.planners), sorted(k for k in ('torch', 'cvxpy', 'pymoo') if k in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["9", "[]"]
 
 
 def test_every_planner_is_documented():
