@@ -74,6 +74,16 @@ class TracedEvaluator(Evaluator):
         self.trace.append((int(task), int(self.task_samples[task]), self.samples, float(self.best[task])))
         return d
 
+    def fitness(self, task: int, layouts, soft_power: float | None = None) -> np.ndarray:
+        """What a search minimises on ``task``: the soft max with ``soft_power``, else the max."""
+        d = self.evaluate(task, layouts, soft_power)
+        return d.soft_u if soft_power else d.max_u
+
+    def shared_fitness(self, layouts, soft_power: float | None = None) -> np.ndarray:
+        """The same over all tasks (``evaluate_shared_soft``): soft worst with ``soft_power``, else worst."""
+        worst, soft = self.evaluate_shared_soft(layouts, soft_power)
+        return soft if soft_power else worst
+
     def evaluate_shared(self, layouts) -> np.ndarray:
         """Worst max deformation over all tasks of each layout; costs n_tasks samples per layout."""
         return self.evaluate_shared_soft(layouts)[0]

@@ -112,13 +112,12 @@ class _EvolutionaryPlanner(Planner):
         xl, xu, vtype, decode = self._encoding(problem)
         if mode == "shared":
             require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            runs = [(lambda layouts: _pick(ev.evaluate_shared_soft(layouts, p), p),
+            runs = [(lambda layouts: ev.shared_fitness(layouts, p),
                      cfg.evals_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks))]
         else:
             require_budget(self.name, ev.remaining, problem.n_tasks, "one layout per task")
             shares = split_budget(ev.budget, problem.n_tasks, cfg.evals_per_task)
-            runs = [(lambda layouts, t=t: _pick(_pair(ev.evaluate(t, layouts, p)), p), n)
-                    for t, n in enumerate(shares)]
+            runs = [(lambda layouts, t=t: ev.fitness(t, layouts, p), n) for t, n in enumerate(shares)]
         generations, n_eval, restarts = [], [], []
         for score, allowance in runs:
             spent, left, gens, starts = ev.samples, allowance, 0, 0
@@ -141,15 +140,6 @@ class _EvolutionaryPlanner(Planner):
         if mode == "shared":
             return np.tile(ev.shared_layout, (problem.n_tasks, 1)), info
         return ev.best_layout.copy(), info
-
-
-def _pair(d) -> tuple[np.ndarray, np.ndarray]:
-    return d.max_u, d.soft_u
-
-
-def _pick(values: tuple[np.ndarray, np.ndarray], power: float | None) -> np.ndarray:
-    """The fitness: the soft max with a power, else the max."""
-    return values[1] if power else values[0]
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ other to the symmetric optimum (every start within 5 % for 2 <= p <= 16). ``soft
 descends on the max itself.
 
 Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
-shared mode runs it once on the worst-over-tasks objective (``evaluate_shared``, n_tasks samples
+shared mode runs it once on the worst-over-tasks objective (``shared_fitness``, n_tasks samples
 per layout). Budget: at least one layout must fit (one sample per task, or n_tasks in shared mode),
 else :class:`PlannerError`. Beyond that it is a documented best effort: when the budget ends in the
 middle of an agent's check, the alternatives that still fit are evaluated (in random order), the
@@ -59,19 +59,12 @@ class Greedy(Planner):
         T, p = problem.n_tasks, self.config.soft_power or None
         if mode == "shared":
             require_budget(self.name, ev.remaining, T, "one shared layout on every task")
-
-            def shared(L):
-                worst, soft = ev.evaluate_shared_soft(L, p)
-                return soft if p else worst
-            runs = self._restarts(problem, shared, T, ev.remaining, rng)
+            runs = self._restarts(problem, lambda L: ev.shared_fitness(L, p), T, ev.remaining, rng)
             return np.tile(ev.shared_layout, (T, 1)), _info([runs])
         require_budget(self.name, ev.remaining, T, "one layout per task")
         all_runs = []
         for task, budget in enumerate(split_budget(ev.budget, T, math.inf)):
-            def evaluate(L, task=task):
-                d = ev.evaluate(task, L, p)
-                return d.soft_u if p else d.max_u
-            all_runs.append(self._restarts(problem, evaluate, 1, budget, rng))
+            all_runs.append(self._restarts(problem, lambda L, t=task: ev.fitness(t, L, p), 1, budget, rng))
         return ev.best_layout.copy(), _info(all_runs)
 
     def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
