@@ -18,9 +18,10 @@ order: input = F + 2 (N - 1) numbers. With one shared reward the game is a team 
 action is a person-by-person optimum found by iterated best response (Gauss-Seidel: agents in
 order, each taking the argmax of its own Q given the others' current choices, until a sweep changes
 nothing, at most ``max_sweeps`` sweeps; the start is each agent's argmax with the others placed at
-the centres of their sets). Exploring agents (each with probability epsilon, independently) play a
-uniform random action and the greedy agents best-respond to them. Iterations and convergence are
-reported in ``info``.
+the centres of their sets; a cycle is recognised when a sweep ends where an earlier one did, and
+the joint action after ``max_sweeps`` sweeps is read off it). Exploring agents (each with
+probability epsilon, independently) play a uniform random action and the greedy agents
+best-respond to them. Iterations and convergence are reported in ``info``.
 
 ``iql`` (the reference code's independent learners): the same networks over the task features
 only; each agent acts on its own argmax.
@@ -29,6 +30,12 @@ Budget: one sample per env step. The run trains for ``episodes`` passes over the
 if the budget is smaller, for as many full episodes as fit (best effort; ``info["episodes_run"]``);
 if not even one episode fits, :class:`PlannerError`. The returned layouts are the greedy policy's
 (epsilon = 0, no samples) for every task, training tasks and held-out tasks alike.
+
+Speed (``python -m bench.marl speed``; times per phase in ``info``): the N networks are one batched
+module with all weights in one flat vector; the update computes only the chosen actions' outputs,
+back-propagates by hand into a persistent gradient buffer (tested against autograd) and runs clip +
+AdamW + soft target update as one fused numba pass (tested against torch's AdamW); best response runs
+batch-1 products in numpy on views of the same weights.
 
 Regret (``info``): ``episode_regret_ref`` is the reference's N T 0.7854 - N sum(step rewards);
 ``episode_regret_true`` is sum over the episode's steps of (max_u - u*) in metres, with u* the
@@ -122,83 +129,269 @@ class NashQConfig(PlannerConfig):
 
 
 # ---------------------------------------------------------------------------------------------
-# the agents' Q-networks, batched: agent n's layer k is W[k][n] (in, out) and b[k][n] (1, out)
+# the agents' Q-networks, batched: agent n's layer k is w[k][n] (in, out) and b[k][n] (1, out)
 # ---------------------------------------------------------------------------------------------
 class StackedQ(nn.Module):
-    """N MLPs of the same shape in stacked tensors (one ``torch.baddbmm`` per layer for all agents).
+    """N MLPs of the same shape, all weights in one flat parameter (one ``torch.baddbmm`` per layer
+    for all agents; one clip, one fused AdamW step and one target lerp per update for all of them).
 
     Output width is the largest action set; the padded actions of smaller sets are masked.
-    Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) from ``generator``.
+    Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) from ``generator``. Training uses
+    :meth:`chosen` and :meth:`backward` (hand-written backprop into a persistent gradient buffer, checked
+    against autograd by a test): autograd's gather backward allocates and zero-fills a fresh
+    (N, hidden, actions) gradient every update, which cost more than the layer's arithmetic.
     """
 
     def __init__(self, n_agents: int, n_in: int, hidden: int, n_out: int,
                  generator: torch.Generator | None = None):
         super().__init__()
         dims = [n_in, hidden, hidden, hidden, n_out]
-        self.shape = (n_agents, n_in, hidden, n_out)
+        self.shapes = []
         for k in range(4):
-            bound = 1.0 / math.sqrt(dims[k])
-            w = (torch.rand(n_agents, dims[k], dims[k + 1], generator=generator) * 2 - 1) * bound
-            b = (torch.rand(n_agents, 1, dims[k + 1], generator=generator) * 2 - 1) * bound
-            self.register_parameter(f"w{k}", nn.Parameter(w))
-            self.register_parameter(f"b{k}", nn.Parameter(b))
+            self.shapes += [(n_agents, dims[k], dims[k + 1]), (n_agents, 1, dims[k + 1])]
+        self.register_buffer("dims", torch.tensor([n_agents, n_in, hidden, n_out]))
+        self.flat = nn.Parameter(torch.empty(sum(math.prod(s) for s in self.shapes)))
+        with torch.no_grad():
+            for k, v in enumerate(self._views(self.flat)):
+                bound = 1.0 / math.sqrt(dims[k // 2])
+                v.copy_((torch.rand(v.shape, generator=generator) * 2 - 1) * bound)
+
+    def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
+        out, off = [], 0
+        for s in self.shapes:
+            size = math.prod(s)
+            out.append(flat[off:off + size].view(s))
+            off += size
+        return out
+
+    def weights(self) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """([w0..w3], [b0..b3]) as views of the flat parameter (no autograd)."""
+        v = self._views(self.flat.detach())
+        return v[0::2], v[1::2]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (N, B, in) -> Q (N, B, out): every agent on its own batch."""
-        h = torch.relu(torch.baddbmm(self.b0, x, self.w0))
-        h = torch.relu(torch.baddbmm(self.b1, h, self.w1))
-        h = torch.relu(torch.baddbmm(self.b2, h, self.w2))
-        return torch.baddbmm(self.b3, h, self.w3)
+        w, b = self.weights()
+        h = torch.relu(torch.baddbmm(b[0], x, w[0]))
+        h = torch.relu(torch.baddbmm(b[1], h, w[1]))
+        h = torch.relu(torch.baddbmm(b[2], h, w[2]))
+        return torch.baddbmm(b[3], h, w[3])
 
-    def chosen(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        """Q of the chosen actions only: x (N, B, in), a (N, B) -> (N, B).
+    def chosen(self, x: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+        """Q of the chosen actions only: x (N, B, in), a (N, B) -> (N, B), and what :meth:`backward` needs.
 
-        Equal to ``forward(x).gather(2, a[..., None])`` but the output layer computes only the
-        chosen columns (the output layer is most of the network's work on large action sets).
+        Equal to ``forward(x).gather(2, a[..., None])``; the output layer computes only the chosen
+        columns (it is most of the network's work on large action sets).
         """
-        h = torch.relu(torch.baddbmm(self.b0, x, self.w0))
-        h = torch.relu(torch.baddbmm(self.b1, h, self.w1))
-        h = torch.relu(torch.baddbmm(self.b2, h, self.w2))
-        w = self.w3.gather(2, a[:, None, :].expand(-1, self.w3.shape[1], -1))  # (N, H, B)
-        return (h * w.transpose(1, 2)).sum(dim=2) + self.b3[:, 0].gather(1, a)
+        w, b = self.weights()
+        h0 = torch.bmm(x, w[0]).add_(b[0]).relu_()
+        h1 = torch.bmm(h0, w[1]).add_(b[1]).relu_()
+        h2 = torch.bmm(h1, w[2]).add_(b[2]).relu_()
+        w3a = w[3].gather(2, a[:, None, :].expand(-1, w[3].shape[1], -1)).transpose(1, 2)  # (N, B, H)
+        q = (h2 * w3a).sum(dim=2) + b[3][:, 0].gather(1, a)
+        return q, (x, a, h0, h1, h2, w3a)
 
-    def one(self, i: int, x: torch.Tensor) -> torch.Tensor:
-        """x (B, in) -> Q (B, out) of agent i alone."""
-        h = torch.relu(torch.addmm(self.b0[i], x, self.w0[i]))
-        h = torch.relu(torch.addmm(self.b1[i], h, self.w1[i]))
-        h = torch.relu(torch.addmm(self.b2[i], h, self.w2[i]))
-        return torch.addmm(self.b3[i], h, self.w3[i])
+    def backward(self, gq: torch.Tensor, saved: tuple) -> None:
+        """Write d(loss)/d(weights) into ``flat.grad`` given gq = d(loss)/d(chosen Q) (N, B)."""
+        x, a, h0, h1, h2, w3a = saved
+        if self.flat.grad is None:
+            self.flat.grad = torch.zeros_like(self.flat)
+        w, _ = self.weights()
+        gv = self._views(self.flat.grad)
+        gw, gb = gv[0::2], gv[1::2]
+        gw[3].zero_()
+        gb[3].zero_()
+        col = a[:, None, :].expand(-1, h2.shape[2], -1)
+        gw[3].scatter_add_(2, col, (h2 * gq[..., None]).transpose(1, 2))
+        gb[3][:, 0].scatter_add_(1, a, gq)
+        relu_backward = torch.ops.aten.threshold_backward  # what autograd runs for relu: grad where h > 0
+        dz = relu_backward(w3a * gq[..., None], h2, 0.0)
+        for k, h_in in ((2, h1), (1, h0), (0, x)):
+            torch.bmm(h_in.transpose(1, 2), dz, out=gw[k])
+            torch.sum(dz, dim=1, keepdim=True, out=gb[k])
+            if k:
+                dz = relu_backward(torch.bmm(dz, w[k].transpose(1, 2)), h_in, 0.0)
 
     @classmethod
     def from_state_dict(cls, state: dict) -> StackedQ:
         """Rebuild from a saved state dict (``torch.load(path, weights_only=True)``)."""
-        n, n_in, hidden = state["w0"].shape
-        net = cls(n, n_in, hidden, state["w3"].shape[2])
+        net = cls(*(int(d) for d in state["dims"]))
         net.load_state_dict(state)
         return net
 
 
+@numba.njit(parallel=True, cache=True)
+def _adamw_step(p, g, m, v, vmax, target, lr, weight_decay, beta1, beta2, eps, step, clip, tau):
+    """Gradient-value clip, AdamW (amsgrad) and soft target update in one pass over the weights.
+
+    The arithmetic of ``torch.optim.AdamW(amsgrad=True)`` (decoupled weight decay, bias-corrected
+    moments, the running max of the second moment) followed by ``target.lerp_(p, tau)``; moments
+    below the smallest normal float are set to zero, as a CPU's flush-to-zero mode would.
+    """
+    f32 = np.float32  # all arithmetic in float32, as torch's kernels do (and it vectorises twice as wide)
+    bc2_sqrt = f32(np.sqrt(1.0 - beta2 ** step))
+    step_size = f32(lr / (1.0 - beta1 ** step))
+    decay, b2 = f32(1.0 - lr * weight_decay), f32(beta2)
+    one_b1, one_b2, eps, clip, tau = f32(1.0 - beta1), f32(1.0 - beta2), f32(eps), f32(clip), f32(tau)
+    tiny, zero = np.finfo(np.float32).tiny, f32(0.0)
+    for i in numba.prange(p.size):
+        gi = min(max(g[i], -clip), clip)
+        mi = m[i] + one_b1 * (gi - m[i])
+        vi = b2 * v[i] + one_b2 * gi * gi
+        mi = mi if abs(mi) >= tiny else zero
+        vi = vi if vi >= tiny else zero
+        vmx = max(vmax[i], vi)
+        pi = p[i] * decay - step_size * mi / (np.sqrt(vmx) / bc2_sqrt + eps)
+        m[i], v[i], vmax[i], p[i] = mi, vi, vmx, pi
+        target[i] += tau * (pi - target[i])
+
+
 class Update:
-    """clip_grad_value_, AdamW (amsgrad; torch's fused CPU kernel on CPU), soft target update."""
+    """One training update of all agents: clip gradient values, AdamW (amsgrad), soft target update.
 
-    def __init__(self, params, targets, lr, clip, tau, device):
-        self.params, self.targets, self.clip, self.tau = list(params), list(targets), clip, tau
-        kind = {"fused": True} if device.type == "cpu" else {"foreach": True}
-        self.opt = torch.optim.AdamW(self.params, lr=lr, amsgrad=True, **kind)
+    On CPU one fused numba pass over the flat weights (:func:`_adamw_step`, tested equal to
+    ``clip_grad_value_`` + ``torch.optim.AdamW(amsgrad=True)`` + ``lerp_``). Why not torch's own fused
+    AdamW: the moments of weights without gradient (unchosen actions, inactive units) decay by beta1 per
+    update into denormal floats, on which arithmetic is 10-100x slower, and torch can flush denormals only
+    in the calling thread, not in its worker threads (measured on the full protocol: torch's AdamW took
+    1.7 ms per update instead of 0.7 ms); and one pass instead of three (clip, AdamW, lerp) saves memory
+    traffic. On CUDA: torch's AdamW (foreach) and lerp.
+    """
 
-    def zero_grad(self):
-        self.opt.zero_grad(set_to_none=True)
+    def __init__(self, q: StackedQ, target: StackedQ, lr: float, clip: float, tau: float, device: torch.device,
+                 weight_decay: float = 0.01, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.q, self.target, self.lr, self.clip, self.tau = q, target, lr, clip, tau
+        self.weight_decay, self.betas, self.eps = weight_decay, betas, eps
+        self.cpu = device.type == "cpu"
+        self.steps = 0
+        if self.cpu:
+            self.state = [torch.zeros_like(q.flat) for _ in range(3)]  # m, v, max v
+        else:
+            self.opt = torch.optim.AdamW([q.flat], lr=lr, betas=betas, eps=eps, weight_decay=weight_decay,
+                                         amsgrad=True, foreach=True)
 
     @torch.no_grad()
     def step(self):
-        torch.nn.utils.clip_grad_value_(self.params, self.clip)
-        self.opt.step()
-        torch._foreach_lerp_(self.targets, self.params, self.tau)
+        self.steps += 1
+        if not self.cpu:
+            self.q.flat.grad.clamp_(-self.clip, self.clip)
+            self.opt.step()
+            self.target.flat.lerp_(self.q.flat, self.tau)
+            return
+        m, v, vmax = (t.numpy() for t in self.state)
+        oracle_threads = numba.get_num_threads()
+        numba.set_num_threads(min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+        _adamw_step(self.q.flat.detach().numpy(), self.q.flat.grad.numpy(), m, v, vmax,
+                    self.target.flat.detach().numpy(), self.lr, self.weight_decay, self.betas[0], self.betas[1],
+                    self.eps, self.steps, self.clip, self.tau)
+        numba.set_num_threads(oracle_threads)
 
 
 def load_weights(path: str) -> StackedQ:
     """Trained Q-networks saved by ``Config.save_path`` (loaded with ``weights_only=True``)."""
     return StackedQ.from_state_dict(torch.load(path, weights_only=True, map_location="cpu"))
+
+
+# ---------------------------------------------------------------------------------------------
+# best response on the host: one agent's Q for one input row, and the Gauss-Seidel iteration
+# ---------------------------------------------------------------------------------------------
+@numba.njit(cache=True)
+def _dense(x, w, b, relu):
+    """x (in,) @ w (in, out) + b (1, out), optionally ReLU; skips zero inputs (half of them after a ReLU)."""
+    h = b[0].copy()
+    for k in range(w.shape[0]):
+        xk = x[k]
+        if xk != 0.0:
+            for j in range(w.shape[1]):
+                h[j] += xk * w[k, j]
+    if relu:
+        for j in range(h.size):
+            h[j] = max(h[j], np.float32(0.0))
+    return h
+
+
+@numba.njit(cache=True)
+def _q_row(ws, mask, i, x):
+    """Agent i's Q over its own actions for one input row; ws = (w0, w1, w2, w3, b0, b1, b2, b3)."""
+    h = _dense(x, ws[0][i], ws[4][i], True)
+    h = _dense(h, ws[1][i], ws[5][i], True)
+    h = _dense(h, ws[2][i], ws[6][i], True)
+    return _dense(h, ws[3][i], ws[7][i], False) + mask[i]
+
+
+@numba.njit(cache=True)
+def _q_rows(ws, mask, i, x):
+    out = np.empty((x.shape[0], mask.shape[1]), dtype=np.float32)
+    for r in range(x.shape[0]):
+        out[r] = _q_row(ws, mask, i, x[r])
+    return out
+
+
+@numba.njit(cache=True)
+def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_sweeps, joint):
+    """Greedy joint actions of a batch of states; see ``_Learner.greedy`` and the module docstring.
+
+    Start: every free agent's argmax with the others at their sets' centres (fixed agents where they
+    are). Then Gauss-Seidel sweeps (joint learners only): each agent that needs a turn takes its argmax
+    given the others' current actions; when its action changes in any row, every other free agent needs
+    a turn again; converged when a sweep ends with no agent needing one. Best response is deterministic,
+    so when the state at the end of a sweep (actions, agents needing a turn) repeats an earlier one the
+    rest is a cycle, and the actions after ``max_sweeps`` sweeps are read off it. Returns
+    (actions (B, N), sweeps computed, converged).
+    """
+    nb, n = fixed.shape
+    nf = s.shape[1]
+    x = np.empty(nf + (2 * (n - 1) if joint else 0), dtype=np.float32)
+    a = fixed_actions.copy()
+    free = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for r in range(nb):
+            free[i] |= not fixed[r, i]
+    for i in range(n):  # the start
+        if not free[i]:
+            continue
+        for r in range(nb):
+            if fixed[r, i]:
+                continue
+            x[:nf] = s[r]
+            if joint:
+                for jj in range(n - 1):
+                    j = others[i, jj]
+                    x[nf + 2 * jj:nf + 2 * jj + 2] = pos[j, fixed_actions[r, j]] if fixed[r, j] else centre[j]
+            a[r, i] = np.argmax(_q_row(ws, mask, i, x))
+    if not joint:
+        return a, 0, True
+    dirty = free.copy()
+    hist_a = np.empty((max_sweeps + 1, nb, n), dtype=np.int64)
+    hist_d = np.empty((max_sweeps + 1, n), dtype=np.bool_)
+    hist_a[0], hist_d[0] = a, dirty
+    for sweep in range(1, max_sweeps + 1):
+        for i in range(n):
+            if not dirty[i]:
+                continue
+            dirty[i] = False
+            changed = False
+            for r in range(nb):
+                if fixed[r, i]:
+                    continue
+                x[:nf] = s[r]
+                for jj in range(n - 1):
+                    j = others[i, jj]
+                    x[nf + 2 * jj:nf + 2 * jj + 2] = pos[j, a[r, j]]
+                new = np.argmax(_q_row(ws, mask, i, x))
+                if new != a[r, i]:
+                    a[r, i] = new
+                    changed = True
+            if changed:
+                for j in range(n):
+                    dirty[j] = free[j] and j != i
+        if not dirty.any():
+            return a, sweep, True
+        for k in range(sweep):
+            if (hist_a[k] == a).all() and (hist_d[k] == dirty).all():  # a cycle of period sweep - k
+                return hist_a[k + (max_sweeps - k) % (sweep - k)].copy(), sweep, False
+        hist_a[sweep], hist_d[sweep] = a, dirty
+    return a, max_sweeps, False
 
 
 # ---------------------------------------------------------------------------------------------
@@ -230,19 +423,22 @@ class _Learner:
             pos[i, :len(s)] = (c[s] - cmin) / cspan
             centre[i] = pos[i, :len(s)].mean(axis=0)
         self.pos = torch.tensor(pos, dtype=torch.float32, device=device)  # (N, A, 2)
-        self.centre = torch.tensor(centre, dtype=torch.float32, device=device)  # (N, 2)
         self.others = torch.tensor([[j for j in range(n) if j != i] for i in range(n)],
                                    dtype=torch.long, device=device).reshape(n, max(n - 1, 0))
-        mask = torch.zeros(n, a_max, device=device)
-        for i, s in enumerate(sizes):
-            mask[i, s:] = -torch.inf
-        self.mask = mask
+        mask = np.zeros((n, a_max), dtype=np.float32)  # -inf on the padding of smaller action sets
+        for i, size in enumerate(sizes):
+            mask[i, size:] = -np.inf
         n_in = feats.shape[1] + (2 * (n - 1) if self.joint else 0)
         self.q = StackedQ(n, n_in, cfg.hidden, a_max, generator).to(device)
         self.target = StackedQ(n, n_in, cfg.hidden, a_max).to(device)
         self.target.load_state_dict(self.q.state_dict())
         self.target.requires_grad_(False)
         self.agent_idx = torch.arange(n, device=device)
+        # host arrays for action choice
+        self.feats_np, self.pos_np, self.centre_np = (feats.astype(np.float32), pos.astype(np.float32),
+                                                      centre.astype(np.float32))
+        self.others_np = self.others.cpu().numpy()
+        self.mask_np = mask
 
     # inputs -----------------------------------------------------------------------------------
     def inputs(self, states: torch.Tensor, joint_pos: torch.Tensor | None) -> torch.Tensor:
@@ -259,61 +455,57 @@ class _Learner:
         return self.pos[self.agent_idx, actions]
 
     # action choice ----------------------------------------------------------------------------
-    @torch.no_grad()
-    def greedy(self, tasks: torch.Tensor, fixed: torch.Tensor | None = None,
-               fixed_actions: torch.Tensor | None = None) -> tuple[torch.Tensor, int, bool]:
-        """Greedy joint actions (B, N) for tasks (B,), keeping ``fixed`` agents' actions.
+    def _host_weights(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The policy network's weights as numpy arrays: zero-copy views on CPU (the optimiser
+        updates the flat parameter in place, so the views stay current); a copy from a GPU."""
+        flat = self.q.flat.detach()
+        if flat.device.type != "cpu":
+            v = [t.numpy() for t in self.q._views(flat.cpu())]
+            return v[0::2], v[1::2]
+        if getattr(self, "_host_ptr", None) != flat.data_ptr():
+            v = [t.numpy() for t in self.q._views(flat)]
+            self._host, self._host_ptr = (v[0::2], v[1::2]), flat.data_ptr()
+        return self._host
+
+    def _q_host(self, i: int, x: np.ndarray) -> np.ndarray:
+        """Agent i's Q over its own actions (padding masked) for inputs x (B, in), on the host."""
+        w, b = self._host_weights()
+        return _q_rows(tuple(w + b), self.mask_np, i, np.ascontiguousarray(x, dtype=np.float32))
+
+    def greedy(self, tasks: np.ndarray, fixed: np.ndarray | None = None,
+               fixed_actions: np.ndarray | None = None) -> tuple[np.ndarray, int, bool]:
+        """Greedy joint actions (B, N) for tasks (B,), keeping ``fixed`` agents' actions (B, N).
 
         iql: each agent's argmax. nashq: person-by-person equilibrium of the agents' Q-networks by
-        Gauss-Seidel best response; returns (actions, sweeps, converged).
+        Gauss-Seidel best response (:func:`_best_response`, compiled: batch-1 products are far below
+        torch's or numpy's per-call overhead); returns (actions, sweeps computed, converged).
         """
-        s = self.feats[tasks]  # (B, F)
         nb = len(tasks)
         if fixed is None:
-            fixed = torch.zeros(nb, self.n, dtype=torch.bool, device=self.device)
-            fixed_actions = torch.zeros(nb, self.n, dtype=torch.long, device=self.device)
-        states = s.expand(self.n, nb, s.shape[1])
-        if self.joint:  # start: others at their sets' centres (fixed agents where they are)
-            jp = self.centre.expand(nb, self.n, 2).clone()
-            jp[fixed] = self.joint_pos(fixed_actions)[fixed]
-            jp = jp.expand(self.n, nb, self.n, 2)
-        else:
-            jp = None
-        q = self.q(self.inputs(states, jp)) + self.mask[:, None, :]
-        a = torch.where(fixed, fixed_actions, q.argmax(dim=2).T)
-        if not self.joint:
-            return a, 0, True
-        free = (~fixed).any(dim=0).tolist()
-        dirty = list(free)
-        sweeps, converged = 0, False
-        while sweeps < self.max_sweeps:
-            sweeps += 1
-            for i in range(self.n):
-                if not dirty[i]:
-                    continue
-                dirty[i] = False
-                oth = self.joint_pos(a)[:, self.others[i]].reshape(nb, -1)
-                qi = self.q.one(i, torch.cat([s, oth], dim=1)) + self.mask[i]
-                new = torch.where(fixed[:, i], a[:, i], qi.argmax(dim=1))
-                if bool((new != a[:, i]).any()):
-                    a[:, i] = new
-                    for j in range(self.n):
-                        dirty[j] = free[j] and j != i or dirty[j]
-            if not any(dirty):
-                converged = True
-                break
-        return a, sweeps, converged
+            fixed = np.zeros((nb, self.n), dtype=bool)
+            fixed_actions = np.zeros((nb, self.n), dtype=np.int64)
+        w, b = self._host_weights()
+        a, sweeps, converged = _best_response(tuple(w + b), self.mask_np, self.feats_np[tasks], self.pos_np,
+                                              self.centre_np, self.others_np, fixed, fixed_actions.astype(np.int64),
+                                              self.max_sweeps, self.joint)
+        return a, int(sweeps), bool(converged)
 
     # learning ---------------------------------------------------------------------------------
-    def loss(self, tasks: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
-             alpha: float) -> torch.Tensor:
-        """Huber loss per agent (N,) on replay samples: tasks (N, B), actions (N, B, N), rewards (N, B)."""
+    @torch.no_grad()
+    def td_grad(self, tasks: torch.Tensor, actions: torch.Tensor, rewards: torch.Tensor,
+                alpha: float) -> torch.Tensor:
+        """Huber loss per agent (N,) on replay samples, its gradient written into ``q.flat.grad``.
+
+        tasks (N, B), actions (N, B, N), rewards (N, B). Target (1 - alpha) Q_target(s, a) + alpha r;
+        the gradient is that of the sum over agents of each agent's mean Huber loss (delta 1).
+        """
         states = self.feats[tasks]
         x = self.inputs(states, self.joint_pos(actions) if self.joint else None)
         own = actions.gather(2, self.agent_idx[:, None, None].expand(self.n, actions.shape[1], 1))[..., 0]
-        q = self.q.chosen(x, own)
-        with torch.no_grad():
-            target = (1 - alpha) * self.target.chosen(x, own) + alpha * rewards
+        q, saved = self.q.chosen(x, own)
+        target = (1 - alpha) * self.target.chosen(x, own)[0] + alpha * rewards
+        diff = q - target
+        self.q.backward(diff.clamp(-1.0, 1.0) / diff.shape[1], saved)
         return F.smooth_l1_loss(q, target, reduction="none").mean(dim=1)
 
 
@@ -358,7 +550,6 @@ class _QPlanner(Planner):
             raise PlannerError(f"planner '{self.name}': budget too small: one episode needs {n_train} "
                                f"samples, {int(ev.remaining)} available")
         episodes = min(cfg.episodes, fit)
-        steps_total = episodes * n_train
 
         # seeding: everything random comes from rng (numpy) and a torch generator seeded from it
         seed = int(rng.integers(2**31 - 1))
@@ -367,84 +558,16 @@ class _QPlanner(Planner):
         threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
         det = torch.are_deterministic_algorithms_enabled()
         torch.use_deterministic_algorithms(True, warn_only=True)
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
-        numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
         try:
-            L = _Learner(problem, cfg, self.joint, device, gen)
-            opt = Update(L.q.parameters(), L.target.parameters(), cfg.lr, cfg.grad_clip, cfg.tau, device)
-            env = FixtureEnv(problem, reward=cfg.reward, shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
-            agents = env.possible_agents
-
-            cap = min(cfg.capacity, steps_total)
-            buf_task = torch.zeros(cap, dtype=torch.long, device=device)
-            buf_act = torch.zeros(cap, n, dtype=torch.long, device=device)
-            buf_rew = torch.zeros(cap, dtype=torch.float32, device=device)
-            sizes = np.array(L.sizes)
-
-            step_reward, step_u, step_task = [], [], []
-            ep_return, ep_loss = [], []
-            sweeps_sum, conv_sum, br_calls = 0, 0, 0
-            t_oracle = t_select = t_update = 0.0
-            steps = 0
-            for _ in range(episodes):
-                obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
-                loss_sum, n_upd, ret = torch.zeros(n, device=device), 0, 0.0
-                while env.agents:
-                    t0 = time.perf_counter()
-                    task = env.task
-                    eps = cfg.eps_end + (cfg.eps_start - cfg.eps_end) * math.exp(-steps / cfg.eps_decay)
-                    explore = rng.random(n) < eps
-                    rand = (rng.random(n) * sizes).astype(np.int64)
-                    if explore.all():
-                        act = rand
-                    else:
-                        a, sw, cv = L.greedy(torch.tensor([task], device=device),
-                                             torch.from_numpy(explore)[None].to(device),
-                                             torch.from_numpy(rand)[None].to(device))
-                        act = a[0].cpu().numpy()
-                        sweeps_sum, conv_sum, br_calls = sweeps_sum + sw, conv_sum + cv, br_calls + 1
-                    t1 = time.perf_counter()
-                    _, rew, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
-                    t2 = time.perf_counter()
-                    r = rew[agents[0]]
-                    info = infos[agents[0]]
-                    step_reward.append(r)
-                    step_u.append(info["max_u"])
-                    step_task.append(task)
-                    ret += r
-                    k = steps % cap
-                    buf_task[k] = task
-                    buf_act[k] = torch.from_numpy(act)
-                    buf_rew[k] = r
-                    steps += 1
-                    size = min(steps, cap)
-                    if size >= cfg.batch:
-                        idx = torch.from_numpy(rng.integers(0, size, (n, cfg.batch))).to(device)
-                        loss = L.loss(buf_task[idx], buf_act[idx], buf_rew[idx], cfg.alpha)
-                        opt.zero_grad()
-                        loss.sum().backward()
-                        opt.step()  # clip, AdamW, soft target update
-                        loss_sum += loss.detach()
-                        n_upd += 1
-                    t_select += t1 - t0
-                    t_oracle += t2 - t1
-                    t_update += time.perf_counter() - t2
-                ep_return.append(ret)
-                ep_loss.append((loss_sum / max(n_upd, 1)).cpu().tolist())
-
-            # greedy policy on every task (training and held-out): no samples
-            t3 = time.perf_counter()
-            a, g_sweeps, g_conv = L.greedy(torch.arange(problem.n_tasks, device=device))
-            actions = a.cpu().numpy()
-            layouts = np.column_stack([problem.action_sets[i][actions[:, i]] for i in range(n)])
-            t_greedy = time.perf_counter() - t3
-            if cfg.save_path:
-                torch.save(L.q.state_dict(), cfg.save_path)
+            run = self._train(problem, ev, rng, ids, episodes, device, gen)
         finally:
             torch.set_num_threads(threads)
             numba.set_num_threads(numba_threads)
             torch.use_deterministic_algorithms(det)
+        layouts, (step_reward, step_u, step_task, ep_return, ep_loss) = run["layouts"], run["record"]
+        sweeps_sum, conv_sum, br_calls = run["sweeps"]
+        t_oracle, t_select, t_update, t_greedy = run["times"]
+        g_sweeps, g_conv = run["greedy"]
 
         # training record -------------------------------------------------------------------------
         rew_arr, u_arr, task_arr = np.array(step_reward), np.array(step_u), np.array(step_task)
@@ -460,7 +583,7 @@ class _QPlanner(Planner):
             "budget_limited": episodes < cfg.episodes,
             "train_tasks": ids.tolist(),
             "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
-            "steps": steps,
+            "steps": len(step_reward),
             "step_reward": rew_arr.tolist(),
             "step_max_u": u_arr.tolist(),
             "step_task": task_arr.tolist(),
@@ -483,6 +606,84 @@ class _QPlanner(Planner):
             "torch_threads": cfg.threads or threads,
         }
         return layouts, info
+
+
+    def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
+               episodes: int, device: torch.device, gen: torch.Generator) -> dict:
+        """The training loop and the greedy policy (the caller restores thread settings)."""
+        cfg, n = self.config, problem.n_agents
+        steps_total = episodes * len(ids)
+        if cfg.threads:
+            torch.set_num_threads(cfg.threads)
+        numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
+        L = _Learner(problem, cfg, self.joint, device, gen)
+        opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
+        env = FixtureEnv(problem, reward=cfg.reward, shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
+        agents = env.possible_agents
+
+        cap = min(cfg.capacity, steps_total)
+        buf_task = torch.zeros(cap, dtype=torch.long, device=device)
+        buf_act = torch.zeros(cap, n, dtype=torch.long, device=device)
+        buf_rew = torch.zeros(cap, dtype=torch.float32, device=device)
+        sizes = np.array(L.sizes)
+
+        step_reward, step_u, step_task = [], [], []
+        ep_return, ep_loss = [], []
+        sweeps_sum, conv_sum, br_calls = 0, 0, 0
+        t_oracle = t_select = t_update = 0.0
+        steps = 0
+        for _ in range(episodes):
+            obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
+            loss_sum, n_upd, ret = torch.zeros(n, device=device), 0, 0.0
+            while env.agents:
+                t0 = time.perf_counter()
+                task = env.task
+                eps = cfg.eps_end + (cfg.eps_start - cfg.eps_end) * math.exp(-steps / cfg.eps_decay)
+                explore = rng.random(n) < eps
+                rand = (rng.random(n) * sizes).astype(np.int64)
+                if explore.all():
+                    act = rand
+                else:
+                    a, sw, cv = L.greedy(np.array([task]), explore[None], rand[None])
+                    act = a[0]
+                    sweeps_sum, conv_sum, br_calls = sweeps_sum + sw, conv_sum + cv, br_calls + 1
+                t1 = time.perf_counter()
+                _, rew, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
+                t2 = time.perf_counter()
+                r = rew[agents[0]]
+                info = infos[agents[0]]
+                step_reward.append(r)
+                step_u.append(info["max_u"])
+                step_task.append(task)
+                ret += r
+                k = steps % cap
+                buf_task[k] = task
+                buf_act[k] = torch.from_numpy(act)
+                buf_rew[k] = r
+                steps += 1
+                size = min(steps, cap)
+                if size >= cfg.batch:
+                    idx = torch.from_numpy(rng.integers(0, size, (n, cfg.batch))).to(device)
+                    loss = L.td_grad(buf_task[idx], buf_act[idx], buf_rew[idx], cfg.alpha)
+                    opt.step()  # clip, AdamW, soft target update
+                    loss_sum += loss
+                    n_upd += 1
+                t_select += t1 - t0
+                t_oracle += t2 - t1
+                t_update += time.perf_counter() - t2
+            ep_return.append(ret)
+            ep_loss.append((loss_sum / max(n_upd, 1)).cpu().tolist())
+
+        # greedy policy on every task (training and held-out): no samples
+        t3 = time.perf_counter()
+        actions, g_sweeps, g_conv = L.greedy(np.arange(problem.n_tasks))
+        layouts = np.column_stack([problem.action_sets[i][actions[:, i]] for i in range(n)])
+        t_greedy = time.perf_counter() - t3
+        if cfg.save_path:
+            torch.save(L.q.state_dict(), cfg.save_path)
+        return {"layouts": layouts, "record": (step_reward, step_u, step_task, ep_return, ep_loss),
+                "sweeps": (sweeps_sum, conv_sum, br_calls), "times": (t_oracle, t_select, t_update, t_greedy),
+                "greedy": (g_sweeps, g_conv)}
 
 
 @register

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import torch
 
 from cases.problem import Problem, load_problem
 from solvers.base import PlannerError
-from solvers.nashq import load_weights
+from solvers.nashq import NashQConfig, StackedQ, Update, _Learner, load_weights
 from solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
@@ -19,6 +21,52 @@ SMALL = dict(episodes=3, hidden=32)
 def problem():
     p = load_problem("wing_panel_small")
     return Problem(p.spec.with_tasks([0, 1, 3]))
+
+
+def test_hand_backprop_and_update_equal_autograd_and_adamw():
+    """StackedQ.backward gives autograd's gradient of the summed per-agent mean Huber loss (repeated
+    actions included), and Update equals torch's clip_grad_value_ + AdamW(amsgrad) + soft update."""
+    g = torch.Generator().manual_seed(0)
+    n, n_in, hidden, n_out, batch = 3, 6, 16, 9, 12
+    net = StackedQ(n, n_in, hidden, n_out, g)
+    x = torch.rand(n, batch, n_in, generator=g)
+    a = torch.randint(0, n_out, (n, batch), generator=g)
+    a[:, 1] = a[:, 0]  # the same action twice in a batch: column gradients must add up
+    y = torch.randn(n, batch, generator=g) * 2  # large enough that some errors exceed the Huber delta
+    q, saved = net.chosen(x, a)
+    assert torch.allclose(q, net(x).gather(2, a[..., None])[..., 0], atol=1e-6)
+    net.backward((q - y).clamp(-1, 1) / batch, saved)
+
+    w, b = [], []
+    for k, v in enumerate(net._views(net.flat.detach())):
+        (w if k % 2 == 0 else b).append(v.clone().requires_grad_(True))
+    h = x
+    for k in range(3):
+        h = torch.relu(torch.baddbmm(b[k], h, w[k]))
+    q_ref = torch.baddbmm(b[3], h, w[3]).gather(2, a[..., None])[..., 0]
+    torch.nn.functional.smooth_l1_loss(q_ref, y, reduction="none").mean(dim=1).sum().backward()
+    ref = torch.cat([t.grad.reshape(-1) for pair in zip(w, b) for t in pair])
+    assert (ref != 0).sum() > 0.3 * ref.numel()
+    assert torch.allclose(net.flat.grad, ref, rtol=1e-5, atol=1e-7)
+
+    # the update: clip at 1e-3 so that clipping bites, three steps
+    target = StackedQ(n, n_in, hidden, n_out)
+    target.load_state_dict(net.state_dict())
+    p_ref, t_ref = net.flat.detach().clone().requires_grad_(True), target.flat.detach().clone()
+    opt_ref = torch.optim.AdamW([p_ref], lr=1e-2, amsgrad=True)
+    upd = Update(net, target, lr=1e-2, clip=1e-3, tau=0.1, device=torch.device("cpu"))
+    for step in range(3):
+        grad = torch.randn(p_ref.shape, generator=g) * 1e-3 * (step + 1)
+        net.flat.grad.copy_(grad)
+        p_ref.grad = grad.clone()
+        torch.nn.utils.clip_grad_value_([p_ref], 1e-3)
+        opt_ref.step()
+        with torch.no_grad():
+            t_ref.lerp_(p_ref, 0.1)
+        upd.step()
+    assert torch.allclose(net.flat, p_ref, rtol=1e-6, atol=1e-8)
+    assert torch.allclose(target.flat, t_ref, rtol=1e-6, atol=1e-8)
+    assert not torch.allclose(target.flat, net.flat)
 
 
 @pytest.mark.parametrize("name", ["nashq", "iql"])
@@ -71,7 +119,7 @@ def test_weights_round_trip(problem, tmp_path):
     net = load_weights(str(path))
     state = torch.load(path, weights_only=True)
     assert all(torch.equal(net.state_dict()[k], v) for k, v in state.items())
-    x = torch.rand(problem.n_agents, 4, net.w0.shape[1])
+    x = torch.rand(problem.n_agents, 4, int(net.dims[1]))
     assert net(x).shape == (problem.n_agents, 4, max(len(s) for s in problem.action_sets))
 
 
@@ -89,3 +137,53 @@ def test_figure4_panels(problem, tmp_path):
     r = get("iql")(**SMALL).solve(problem, None, seed=0)
     paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
     assert len(paths) == 4 and all(p.stat().st_size > 0 for p in paths)
+
+
+def _plain_gauss_seidel(L, tasks, fixed, fixed_actions):
+    """Best response swept until nothing changes or max_sweeps: the definition, without the cycle short-cut."""
+    s, nb, n = L.feats_np[tasks], len(tasks), L.n
+    a = fixed_actions.copy()
+    jp = np.broadcast_to(L.centre_np, (nb, n, 2)).copy()
+    jp[fixed] = L.pos_np[np.nonzero(fixed)[1], fixed_actions[fixed]]
+    for i in range(n):
+        x = np.concatenate([s, jp[:, L.others_np[i]].reshape(nb, -1)], axis=1)
+        a[:, i] = np.where(fixed[:, i], a[:, i], L._q_host(i, x).argmax(axis=1))
+    free = ~fixed.all(axis=0)
+    dirty = free.copy()
+    for _ in range(L.max_sweeps):
+        for i in range(n):
+            if dirty[i]:
+                dirty[i] = False
+                oth = L.pos_np[L.others_np[i], a[:, L.others_np[i]]].reshape(nb, -1)
+                new = np.where(fixed[:, i], a[:, i], L._q_host(i, np.concatenate([s, oth], axis=1)).argmax(axis=1))
+                if (new != a[:, i]).any():
+                    a[:, i] = new
+                    dirty |= free
+                    dirty[i] = False
+        if not dirty.any():
+            break
+    return a
+
+
+def test_best_response_cycle_shortcut_gives_the_same_actions():
+    """Cycling best response is cut short once a sweep's end state repeats; the actions must equal
+    those after max_sweeps sweeps of the plain iteration (and the short-cut must actually happen)."""
+    rng = np.random.default_rng(0)
+    n, t = 5, 50
+    sets = np.array_split(np.arange(2000), n)
+    prob = SimpleNamespace(n_agents=n, action_sets=sets, features=rng.random((t, 2)),
+                           candidates=rng.random((2000, 2)), n_tasks=t)
+    cut = 0
+    for max_sweeps in (3, 10):
+        L = _Learner(prob, NashQConfig(hidden=256, max_sweeps=max_sweeps), True, torch.device("cpu"),
+                     torch.Generator().manual_seed(1))
+        for k in range(t):
+            fixed = rng.random((1, n)) < 0.2
+            fixed_actions = (rng.random((1, n)) * 400).astype(np.int64)
+            a, sweeps, converged = L.greedy(np.array([k]), fixed, fixed_actions)
+            assert np.array_equal(a, _plain_gauss_seidel(L, np.array([k]), fixed, fixed_actions))
+            cut += not converged and sweeps < max_sweeps
+        a, _, _ = L.greedy(np.arange(t))
+        none = np.zeros((t, n), dtype=bool)
+        assert np.array_equal(a, _plain_gauss_seidel(L, np.arange(t), none, np.zeros((t, n), dtype=np.int64)))
+    assert cut > 0
