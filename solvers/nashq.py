@@ -34,8 +34,8 @@ if not even one episode fits, :class:`PlannerError`. The returned layouts are th
 Speed (``python -m bench.marl speed``; times per phase in ``info``): the N networks are one batched
 module with all weights in one flat vector; the update computes only the chosen actions' outputs,
 back-propagates by hand into a persistent gradient buffer (tested against autograd) and runs clip +
-AdamW + soft target update as one fused numba pass (tested against torch's AdamW); best response runs
-batch-1 products in numpy on views of the same weights.
+AdamW + soft target update as one fused numba pass (tested against torch's AdamW); best response is
+one compiled (numba) call per step on zero-copy views of the same weights.
 
 Regret (``info``): ``episode_regret_ref`` is the reference's N T 0.7854 - N sum(step rewards);
 ``episode_regret_true`` is sum over the episode's steps of (max_u - u*) in metres, with u* the
@@ -132,7 +132,7 @@ class NashQConfig(PlannerConfig):
 # the agents' Q-networks, batched: agent n's layer k is w[k][n] (in, out) and b[k][n] (1, out)
 # ---------------------------------------------------------------------------------------------
 class StackedQ(nn.Module):
-    """N MLPs of the same shape, all weights in one flat parameter (one ``torch.baddbmm`` per layer
+    """N MLPs of the same shape, all weights in one flat parameter (one batched matmul per layer
     for all agents; one clip, one fused AdamW step and one target lerp per update for all of them).
 
     Output width is the largest action set; the padded actions of smaller sets are masked.
