@@ -187,3 +187,16 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
         none = np.zeros((t, n), dtype=bool)
         assert np.array_equal(a, _plain_gauss_seidel(L, np.arange(t), none, np.zeros((t, n), dtype=np.int64)))
     assert cut > 0
+
+
+def test_heldout_benchmark_rows():
+    """bench.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
+    from bench.marl import heldout
+
+    rows = heldout("wing_spar_small", "nashq", fraction=0.4, episodes=2, per_task=(1, 3), baselines=("random",),
+                   hidden=16)
+    learner, *base = rows
+    assert learner["train_tasks"] + learner["held_out_tasks"] == 3 and learner["held_out_tasks"] >= 1
+    assert learner["samples_per_held_out_task"] == 0 and learner["samples"] == 2 * learner["train_tasks"]
+    assert [r["samples"] for r in base] == [learner["held_out_tasks"] * b for b in (1, 3)]
+    assert all(r["gap_to_best_found_pct"] >= 0 for r in rows)
