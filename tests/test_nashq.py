@@ -55,6 +55,7 @@ def test_hand_backprop_and_update_equal_autograd_and_adamw():
     p_ref, t_ref = net.flat.detach().clone().requires_grad_(True), target.flat.detach().clone()
     opt_ref = torch.optim.AdamW([p_ref], lr=1e-2, amsgrad=True)
     upd = Update(net, target, lr=1e-2, clip=1e-3, tau=0.1, device=torch.device("cpu"))
+    p0 = net.flat.detach().clone()
     for step in range(3):
         grad = torch.randn(p_ref.shape, generator=g) * 1e-3 * (step + 1)
         net.flat.grad.copy_(grad)
@@ -66,7 +67,13 @@ def test_hand_backprop_and_update_equal_autograd_and_adamw():
         upd.step()
     assert torch.allclose(net.flat, p_ref, rtol=1e-6, atol=1e-8)
     assert torch.allclose(target.flat, t_ref, rtol=1e-6, atol=1e-8)
-    assert not torch.allclose(target.flat, net.flat)
+    assert not torch.allclose(target.flat, net.flat) and (net.flat - p0).abs().max() > 1e-3
+    # moments that decay below the smallest normal float become zero (flush-to-zero), others just decay
+    m = upd.state[0]
+    m[:4], m[4] = 1e-38, 1e-3
+    net.flat.grad.zero_()
+    upd.step()
+    assert (m[:4] == 0).all() and torch.isclose(m[4], torch.tensor(0.9e-3))
 
 
 @pytest.mark.parametrize("name", ["nashq", "iql"])
