@@ -320,11 +320,15 @@ def _q_row(ws, mask, i, x):
 
 
 @numba.njit(cache=True)
-def _q_rows(ws, mask, i, x):
-    out = np.empty((x.shape[0], mask.shape[1]), dtype=np.float32)
-    for r in range(x.shape[0]):
-        out[r] = _q_row(ws, mask, i, x[r])
-    return out
+def _argmax_q(ws, mask, i, s_r, jp_r, others, joint, x):
+    """Agent i's best action for one state: s_r (F,) task features, jp_r (N, 2) every agent's position
+    (a joint learner sees the others', in agent order); x is scratch for the input row."""
+    nf = s_r.size
+    x[:nf] = s_r
+    if joint:
+        for jj in range(others.shape[1]):
+            x[nf + 2 * jj:nf + 2 * jj + 2] = jp_r[others[i, jj]]
+    return np.argmax(_q_row(ws, mask, i, x))
 
 
 @numba.njit(cache=True)
@@ -340,27 +344,25 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
     (actions (B, N), sweeps computed, converged).
     """
     nb, n = fixed.shape
-    nf = s.shape[1]
-    x = np.empty(nf + (2 * (n - 1) if joint else 0), dtype=np.float32)
+    x = np.empty(s.shape[1] + (2 * (n - 1) if joint else 0), dtype=np.float32)
     a = fixed_actions.copy()
+    jp = np.empty((nb, n, 2), dtype=np.float32)  # positions the agents see: start at the centres
     free = np.zeros(n, dtype=np.bool_)
+    for r in range(nb):
+        for j in range(n):
+            jp[r, j] = pos[j, a[r, j]] if fixed[r, j] else centre[j]
+            free[j] |= not fixed[r, j]
+    start = a.copy()
     for i in range(n):
         for r in range(nb):
-            free[i] |= not fixed[r, i]
-    for i in range(n):  # the start
-        if not free[i]:
-            continue
-        for r in range(nb):
-            if fixed[r, i]:
-                continue
-            x[:nf] = s[r]
-            if joint:
-                for jj in range(n - 1):
-                    j = others[i, jj]
-                    x[nf + 2 * jj:nf + 2 * jj + 2] = pos[j, fixed_actions[r, j]] if fixed[r, j] else centre[j]
-            a[r, i] = np.argmax(_q_row(ws, mask, i, x))
+            if not fixed[r, i]:
+                start[r, i] = _argmax_q(ws, mask, i, s[r], jp[r], others, joint, x)
+    a = start
     if not joint:
         return a, 0, True
+    for r in range(nb):
+        for j in range(n):
+            jp[r, j] = pos[j, a[r, j]]
     dirty = free.copy()
     hist_a = np.empty((max_sweeps + 1, nb, n), dtype=np.int64)
     hist_d = np.empty((max_sweeps + 1, n), dtype=np.bool_)
@@ -374,13 +376,9 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
             for r in range(nb):
                 if fixed[r, i]:
                     continue
-                x[:nf] = s[r]
-                for jj in range(n - 1):
-                    j = others[i, jj]
-                    x[nf + 2 * jj:nf + 2 * jj + 2] = pos[j, a[r, j]]
-                new = np.argmax(_q_row(ws, mask, i, x))
+                new = _argmax_q(ws, mask, i, s[r], jp[r], others, joint, x)
                 if new != a[r, i]:
-                    a[r, i] = new
+                    a[r, i], jp[r, i] = new, pos[i, new]
                     changed = True
             if changed:
                 for j in range(n):
@@ -466,11 +464,6 @@ class _Learner:
             v = [t.numpy() for t in self.q._views(flat)]
             self._host, self._host_ptr = (v[0::2], v[1::2]), flat.data_ptr()
         return self._host
-
-    def _q_host(self, i: int, x: np.ndarray) -> np.ndarray:
-        """Agent i's Q over its own actions (padding masked) for inputs x (B, in), on the host."""
-        w, b = self._host_weights()
-        return _q_rows(tuple(w + b), self.mask_np, i, np.ascontiguousarray(x, dtype=np.float32))
 
     def greedy(self, tasks: np.ndarray, fixed: np.ndarray | None = None,
                fixed_actions: np.ndarray | None = None) -> tuple[np.ndarray, int, bool]:

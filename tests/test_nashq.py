@@ -11,7 +11,7 @@ import torch
 
 from cases.problem import Problem, load_problem
 from solvers.base import PlannerError
-from solvers.nashq import NashQConfig, StackedQ, Update, _Learner, load_weights
+from solvers.nashq import NashQConfig, StackedQ, Update, _Learner, _q_row, load_weights
 from solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
@@ -146,6 +146,12 @@ def test_figure4_panels(problem, tmp_path):
     assert len(paths) == 4 and all(p.stat().st_size > 0 for p in paths)
 
 
+def _q(L, i, x):
+    """Agent i's Q for each row of x, by the planner's own compiled forward pass."""
+    w, b = L._host_weights()
+    return np.stack([_q_row(tuple(w + b), L.mask_np, i, np.ascontiguousarray(row, dtype=np.float32)) for row in x])
+
+
 def _plain_gauss_seidel(L, tasks, fixed, fixed_actions):
     """Best response swept until nothing changes or max_sweeps: the definition, without the cycle short-cut."""
     s, nb, n = L.feats_np[tasks], len(tasks), L.n
@@ -154,7 +160,7 @@ def _plain_gauss_seidel(L, tasks, fixed, fixed_actions):
     jp[fixed] = L.pos_np[np.nonzero(fixed)[1], fixed_actions[fixed]]
     for i in range(n):
         x = np.concatenate([s, jp[:, L.others_np[i]].reshape(nb, -1)], axis=1)
-        a[:, i] = np.where(fixed[:, i], a[:, i], L._q_host(i, x).argmax(axis=1))
+        a[:, i] = np.where(fixed[:, i], a[:, i], _q(L, i, x).argmax(axis=1))
     free = ~fixed.all(axis=0)
     dirty = free.copy()
     for _ in range(L.max_sweeps):
@@ -162,7 +168,7 @@ def _plain_gauss_seidel(L, tasks, fixed, fixed_actions):
             if dirty[i]:
                 dirty[i] = False
                 oth = L.pos_np[L.others_np[i], a[:, L.others_np[i]]].reshape(nb, -1)
-                new = np.where(fixed[:, i], a[:, i], L._q_host(i, np.concatenate([s, oth], axis=1)).argmax(axis=1))
+                new = np.where(fixed[:, i], a[:, i], _q(L, i, np.concatenate([s, oth], axis=1)).argmax(axis=1))
                 if (new != a[:, i]).any():
                     a[:, i] = new
                     dirty |= free
