@@ -57,28 +57,57 @@ def reference_key(case: str, material: str | None, agents: int | None, tasks: in
 
 def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
                       modes: tuple[str, ...]) -> dict:
-    """The regret reference of a problem: the ``exact`` planner's optimum (proven or best known)."""
+    """The regret reference of a problem: the ``exact`` planner's optimum (proven, or best known with
+    its MILP gap); where ``exact`` refuses (too large), the shipped catalog reference of the case
+    (:mod:`cases.references`: the portfolio's best-known layouts), restricted to the problem's tasks.
+    ``source`` says which was used."""
+    from solvers.base import PlannerError
     from solvers.registry import get
 
     p = problem_for(case, material, agents, tasks)
     ref = {"key": reference_key(case, material, agents, tasks), "case": case, "material":
            p.spec.material.name, "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "",
-           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0}
+           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0, "source": ""}
     t0 = time.perf_counter()
     try:
         exact = get("exact")()
-        res = exact.solve(p, None, seed=0, mode="per-task")
-        ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(),
-                   proven=bool(res.info.get("proven", False)), gap=res.info.get("gap"),
-                   method=res.info.get("method"), samples=res.samples)
-        if "shared" in modes:
-            shared = exact.solve(p, None, seed=0, mode="shared")
-            ref["shared"] = shared.objective
-            ref["proven"] = ref["proven"] and bool(shared.info.get("proven", False))
+        try:
+            res = exact.solve(p, None, seed=0, mode="per-task")
+        except PlannerError as refused:
+            shipped = _shipped(case, p, tasks)
+            if shipped is None:
+                raise PlannerError(f"{refused}; and no shipped reference for {p.name}/{p.spec.material.name}/"
+                                   f"{p.n_agents} agents (fixbench references build)") from None
+            ref.update(shipped)
+        else:
+            ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(),
+                       proven=bool(res.info.get("proven", False)), gap=res.info.get("gap"),
+                       method=res.info.get("method"), samples=res.samples, source="exact")
+            if "shared" in modes:
+                shared = exact.solve(p, None, seed=0, mode="shared")
+                ref["shared"] = shared.objective
+                ref["proven"] = ref["proven"] and bool(shared.info.get("proven", False))
     except Exception as exc:  # a failing reference is recorded, never a crash of the matrix
         ref["error"] = f"{type(exc).__name__}: {exc}"
     ref["wall_s"] = time.perf_counter() - t0
     return ref
+
+
+def _shipped(case: str, p: Problem, tasks: int | None) -> dict | None:
+    """The shipped reference of a catalog case for the problem's tasks, or None."""
+    from cases.references import load_reference
+    from cases.spec import case_names
+
+    if case not in case_names():
+        return None
+    full = load_reference(case, p.spec.material.name, p.n_agents)
+    if full is None:
+        return None
+    ids = task_subset(full["n_tasks"], tasks)
+    recs = [full["tasks"][i] for i in ids]
+    return {"per_task": [r["max_deformation_m"] for r in recs], "layouts": [r["layout"] for r in recs],
+            "proven": all(r["status"] == "proven" for r in recs), "gap": None, "method": "portfolio",
+            "source": f"catalog reference {Path(full['path']).name} (content {full['content_hash']})"}
 
 
 def _samples_to(trace: np.ndarray, task: int, target: float) -> float:
@@ -94,23 +123,25 @@ def metrics(result, reference: dict | None) -> dict:
                                      - n_agents * bell.sum())}
     nan = {k: math.nan for k in ("reference_objective_m", "true_regret_m", "relative_regret",
                                  "samples_to_1pct", "samples_to_5pct", "success_1pct", "success_5pct")}
-    out.update(nan, reference_proven=False)
+    out.update(nan, reference_proven=False, reference_source="")
     if not reference or reference.get("per_task") is None:
         return out
+    scored = result.scored_tasks  # held-out track: the tasks acted on without samples
     opt = np.asarray(reference["per_task"])
     shared = result.mode == "shared"
     if shared and reference.get("shared") is None:
         return out
-    ref_obj = reference["shared"] if shared else float(opt.mean())
+    ref_obj = reference["shared"] if shared else float(opt[scored].mean())
     out.update(reference_objective_m=ref_obj, reference_proven=bool(reference["proven"]),
+               reference_source=reference.get("source", ""),
                true_regret_m=result.objective - ref_obj, relative_regret=result.objective / ref_obj - 1)
     for pct, eps in (("1pct", 0.01), ("5pct", 0.05)):
         if shared:
             reach = [_samples_to(result.trace, -1, ref_obj * (1 + eps))]
             success = float(result.objective <= ref_obj * (1 + eps))
         else:
-            reach = [_samples_to(result.trace, t, opt[t] * (1 + eps)) for t in range(len(opt))]
-            success = float(np.mean(result.max_deformation <= opt * (1 + eps)))
+            reach = [_samples_to(result.trace, t, opt[t] * (1 + eps)) for t in scored]
+            success = float(np.mean(result.max_deformation[scored] <= opt[scored] * (1 + eps)))
         reached = [r for r in reach if not math.isnan(r)]
         out[f"samples_to_{pct}"] = float(np.mean(reached)) if reached else math.nan
         out[f"success_{pct}"] = success
@@ -119,8 +150,10 @@ def metrics(result, reference: dict | None) -> dict:
 
 def base_row(cell: Cell) -> dict:
     return {"schema": 1, "cell": cell.id, "planner": cell.planner, "config": json.dumps(dict(cell.config)),
-            "case": cell.case, "agents": cell.agents, "mode": cell.mode,
+            "label": cell.label, "case": cell.case, "agents": cell.agents, "mode": cell.mode,
             "budget": math.nan if cell.budget is None else cell.budget, "seed": cell.seed,
+            "samples_per_task": math.nan if cell.samples_per_task is None else cell.samples_per_task,
+            "heldout_every": math.nan if cell.heldout_every is None else cell.heldout_every,
             "material": cell.material, "version": fixbench_version(), "error": ""}
 
 
@@ -134,9 +167,13 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
     try:
         p = problem_for(cell.case, cell.material, cell.agents, cell.tasks)
         planner = get(cell.planner)(**dict(cell.config))
-        res = planner.solve(p, cell.budget, seed=cell.seed, mode=cell.mode)
+        budget = cell.budget_for(p.n_tasks)
+        res = planner.solve(p, budget, seed=cell.seed, mode="per-task" if cell.mode == "held-out" else cell.mode,
+                            train_tasks=cell.train_tasks(p.n_tasks))
         row.update(config_hash=res.config_hash, part=p.spec.part, material=res.material,
                    agents=p.n_agents, n_tasks=p.n_tasks, samples=res.samples,
+                   budget=math.nan if budget is None else budget, n_scored_tasks=len(res.scored_tasks),
+                   per_task_m=json.dumps(res.max_deformation.tolist()),
                    mean_max_deformation_m=float(res.max_deformation.mean()),
                    worst_max_deformation_m=float(res.max_deformation.max()),
                    best_max_deformation_m=float(res.max_deformation.min()),

@@ -227,6 +227,46 @@ def report(run_dir, out, no_fields) -> None:
                + (f", {len(res['notes'])} skipped" if res["notes"] else "") + ")")
 
 
+@cli.group()
+def references() -> None:
+    """Regret references of the full parts: build them, merge better layouts from a run."""
+
+
+@references.command("build")
+@click.argument("case")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--agents", type=int, help="Number of agents (default: the case's).")
+@click.option("--samples-per-task", type=click.IntRange(min=1), help="Effort of each portfolio planner a task.")
+@click.option("--rounds", type=click.IntRange(min=0), help="Most neighbour-exchange rounds.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder to write to (default: the catalog's references folder).")
+def references_build(case, material, agents, samples_per_task, rounds, out) -> None:
+    """Run the reference portfolio on CASE and write (or improve) its shipped reference."""
+    from dataclasses import replace
+
+    from bench.references import Portfolio, build_and_write
+
+    effort = Portfolio()
+    if samples_per_task is not None:
+        effort = replace(effort, samples_per_task=samples_per_task)
+    if rounds is not None:
+        effort = replace(effort, max_rounds=rounds)
+    path = build_and_write(case, material, agents, effort, echo=lambda m: click.echo(m, err=True), folder=out)
+    click.echo(f"wrote {path}")
+
+
+@references.command("update")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="References folder (default: the catalog's).")
+def references_update(run_dir, out) -> None:
+    """Replace shipped reference layouts that any run in RUN_DIR beats (re-measured first)."""
+    from bench.references import update
+
+    changed = update(run_dir, echo=lambda m: click.echo(m, err=True), folder=out)
+    click.echo(f"{sum(changed.values())} tasks replaced in {len(changed)} reference files")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

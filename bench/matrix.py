@@ -22,8 +22,9 @@ from cases.materials import MATERIALS
 from cases.spec import resolve_case
 from cases.units import Reader
 
-KEYS = ("name", "cases", "materials", "planners", "seeds", "budget", "agents", "mode", "tasks",
-        "description")
+KEYS = ("name", "cases", "materials", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
+        "tasks", "heldout_every", "description")
+MODES = ("per-task", "shared", "held-out")
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,8 @@ class PlannerEntry:
     name: str
     config: tuple[tuple[str, object], ...] = ()
     budget: int | None | str = "matrix"  # "matrix" = use the matrix's budgets; None = unlimited
+    max_samples_per_task: int | None = None  # the budget sweep stops here for this planner
+    label: str = ""  # how reports name this entry (default: the name and its config)
 
 
 @dataclass(frozen=True)
@@ -46,11 +49,29 @@ class Cell:
     budget: int | None
     seed: int
     tasks: int | None
+    samples_per_task: int | None = None  # budget sweep: budget = this x the tasks the planner may evaluate
+    heldout_every: int | None = None  # held-out mode: train on every k-th task, act on the others
+    label: str = ""
 
     @property
     def id(self) -> str:
-        text = json.dumps(asdict(self), sort_keys=True, default=str)
+        d = asdict(self)
+        for k in ("samples_per_task", "heldout_every", "label"):  # absent unless used: older ids stay valid
+            if not d[k]:
+                del d[k]
+        text = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+    def train_tasks(self, n_tasks: int) -> list[int] | None:
+        """Held-out mode: the training tasks (every ``heldout_every``-th, from the first); else None."""
+        return list(range(0, n_tasks, self.heldout_every)) if self.mode == "held-out" else None
+
+    def budget_for(self, n_tasks: int) -> int | None:
+        """The cell's sample budget on a problem of ``n_tasks`` tasks."""
+        if self.samples_per_task is None:
+            return self.budget
+        train = self.train_tasks(n_tasks)
+        return self.samples_per_task * (n_tasks if train is None else len(train))
 
     @property
     def problem_key(self) -> tuple:
@@ -70,15 +91,24 @@ class Matrix:
     agents: tuple[int | None, ...]
     modes: tuple[str, ...]
     tasks: int | None
+    samples_per_task: tuple[int, ...] = ()
+    heldout_every: int | None = None
 
     def cells(self) -> list[Cell]:
-        """Every cell, in a fixed order (case, material, agents, mode, budget, planner, seed)."""
+        """Every cell, in a fixed order (case, material, agents, mode, budget, planner, seed).
+
+        With ``samples_per_task`` (the budget sweep) the budgets are those values a task; a planner
+        entry's ``max_samples_per_task`` drops the larger ones for it, and its own ``budget`` replaces
+        the sweep. Held-out cells carry ``heldout_every``."""
         out = []
-        for case, mat, agents, mode, budget, p, seed in itertools.product(
-                self.cases, self.materials, self.agents, self.modes, self.budgets, self.planners,
-                self.seeds):
-            b = budget if p.budget == "matrix" else p.budget
-            out.append(Cell(p.name, p.config, case, mat, agents, mode, b, seed, self.tasks))
+        sweep = [(None, s) for s in self.samples_per_task] or [(b, None) for b in self.budgets]
+        for case, mat, agents, mode, (budget, spt), p, seed in itertools.product(
+                self.cases, self.materials, self.agents, self.modes, sweep, self.planners, self.seeds):
+            if spt is not None and p.max_samples_per_task is not None and spt > p.max_samples_per_task:
+                continue
+            b, s = (budget, spt) if p.budget == "matrix" else (p.budget, None)
+            out.append(Cell(p.name, p.config, case, mat, agents, mode, b, seed, self.tasks, s,
+                            self.heldout_every if mode == "held-out" else None, p.label))
         # a planner with its own budget repeats across the matrix budgets: keep the first
         seen, unique = set(), []
         for c in out:
@@ -136,18 +166,30 @@ def load_matrix(path: str | Path) -> Matrix:
         if m is not None and m not in MATERIALS:
             raise r.error("materials", f"unknown material '{m}' (known: {', '.join(MATERIALS)})")
     seeds = _list(r, "seeds", int)
-    budgets = [None if b == "unlimited" else b for b in _list(r, "budget", (int, str))]
-    for b in budgets:
-        if b is not None and (isinstance(b, str) or b <= 0):
-            raise r.error("budget", f"must be positive whole numbers or \"unlimited\", got {b!r}")
+    if ("budget" in data) == ("samples_per_task" in data):
+        raise r.error("budget", "give either budget (samples a cell) or samples_per_task (a sweep), not both"
+                      if "budget" in data else "missing (or samples_per_task)")
+    budgets, sweep = [None], []
+    if "budget" in data:
+        budgets = [None if b == "unlimited" else b for b in _list(r, "budget", (int, str))]
+        for b in budgets:
+            if b is not None and (isinstance(b, str) or b <= 0):
+                raise r.error("budget", f"must be positive whole numbers or \"unlimited\", got {b!r}")
+    else:
+        sweep = _list(r, "samples_per_task", int)
+        if any(v < 1 for v in sweep) or len(set(sweep)) != len(sweep):
+            raise r.error("samples_per_task", "must be distinct positive whole numbers")
     agents = _list(r, "agents", int) if "agents" in data else [None]
     if any(a is not None and a < 1 for a in agents):
         raise r.error("agents", "must be at least 1")
     modes = _list(r, "mode", str, ["per-task"])
     for m in modes:
-        if m not in ("per-task", "shared"):
-            raise r.error("mode", f"must be per-task or shared, got '{m}'")
+        if m not in MODES:
+            raise r.error("mode", f"must be one of {', '.join(MODES)}, got '{m}'")
     tasks = r.integer("tasks", None, minimum=1)
+    heldout_every = r.integer("heldout_every", None, minimum=2)
+    if ("held-out" in modes) != (heldout_every is not None):
+        raise r.error("heldout_every", "is needed by mode \"held-out\" (train on every k-th task) and only then")
     planners = []
     raw = r.raw("planners")
     if not isinstance(raw, list) or not raw:
@@ -177,11 +219,16 @@ def load_matrix(path: str | Path) -> Matrix:
             budget = None
         elif budget != "matrix" and (isinstance(budget, str) or budget <= 0):
             raise pr.error("budget", f"must be a positive whole number or \"unlimited\", got {budget!r}")
+        cap = pr.integer("max_samples_per_task", None, minimum=1)
+        label = pr.text("label", "")
         pr.finish()
-        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget))
+        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label))
+    labels = [p.label or p.name + (str(p.config) if p.config else "") for p in planners]
+    if len(set(labels)) != len(labels):
+        raise r.error("planners", "two entries are the same planner and config: give them different labels")
     r.used.update(data)
     return Matrix(name, source, tuple(cases), tuple(materials), tuple(planners), tuple(seeds),
-                  tuple(budgets), tuple(agents), tuple(modes), tasks)
+                  tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every)
 
 
 def _as_text(v) -> str:

@@ -30,3 +30,7 @@ class NumericalError(FixbenchError):
 
 class BudgetExhausted(FixbenchError):
     """A counted evaluation would spend more samples than the evaluator's hard budget."""
+
+
+class HeldOutTask(FixbenchError):
+    """A planner asked the oracle about a task it must act on without samples (held-out track)."""

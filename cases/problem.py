@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from cases import rewards
-from cases.errors import BudgetExhausted, CaseError
+from cases.errors import BudgetExhausted, CaseError, HeldOutTask
 from cases.fem import PlateModel
 from cases.oracle import Oracle
 from cases.spec import CaseSpec, load_case_spec
@@ -153,14 +153,33 @@ class Problem:
 
 
 class Evaluator:
-    """The counted door to the oracle: every layout is a sample, every compliance column too."""
+    """The counted door to the oracle: every layout is a sample, every compliance column too.
 
-    def __init__(self, problem: Problem, budget: int | None = None):
+    ``tasks`` restricts the door to some tasks (the held-out track: a planner trains on these and
+    must act on the others without a sample); asking about any other task raises
+    :class:`~cases.errors.HeldOutTask`.
+    """
+
+    def __init__(self, problem: Problem, budget: int | None = None, tasks=None):
         if budget is not None and budget <= 0:
             raise CaseError(problem.spec.source, "--budget", f"must be positive, got {budget}")
         self.problem = problem
         self.budget = budget
         self.samples = 0
+        all_tasks = np.arange(problem.n_tasks)
+        self.tasks = all_tasks if tasks is None else np.unique(np.asarray(tasks, dtype=np.int64))
+        if len(self.tasks) == 0 or self.tasks[0] < 0 or self.tasks[-1] >= problem.n_tasks:
+            raise CaseError(problem.spec.source, "tasks", f"evaluator tasks must be a non-empty subset of "
+                            f"0..{problem.n_tasks - 1}")
+        self._open = np.isin(all_tasks, self.tasks)
+
+    def check_open(self, task: int) -> int:
+        """``task`` as an int, or :class:`HeldOutTask` if this evaluator may not evaluate it."""
+        task = self.problem.check_task(task)
+        if not self._open[task]:
+            raise HeldOutTask(f"{self.problem.name}: task {task} is held out: a planner acts on it "
+                              "without evaluating it")
+        return task
 
     @property
     def remaining(self) -> float:
@@ -183,7 +202,7 @@ class Evaluator:
         ``soft_power`` p also fills ``soft_u``, the power mean of |u| (same solve, no extra sample).
         """
         p = self.problem
-        task, layouts = p.check_task(task), p.check_layouts(layouts)
+        task, layouts = self.check_open(task), p.check_layouts(layouts)
         self.charge(len(layouts))
         return p.deformation(p.oracle.evaluate(task, layouts, soft_power))
 
@@ -206,7 +225,7 @@ class Evaluator:
         the field at the measurement points (membrane: all ux, then all uy). Charged one sample:
         it is one FE solve.
         """
-        task = self.problem.check_task(task)
+        task = self.check_open(task)
         fo = self.problem.oracle.fields.get(field)
         if fo is None:
             raise CaseError(self.problem.spec.source, "field", f"'{field}' is not active in this case")

@@ -56,8 +56,8 @@ class TracedEvaluator(Evaluator):
 
     TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
 
-    def __init__(self, problem: Problem, budget: int | None):
-        super().__init__(problem, budget)
+    def __init__(self, problem: Problem, budget: int | None, tasks=None):
+        super().__init__(problem, budget, tasks)
         self.task_samples = np.zeros(problem.n_tasks, dtype=np.int64)
         self.best = np.full(problem.n_tasks, np.inf)
         self.best_layout = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
@@ -95,6 +95,8 @@ class TracedEvaluator(Evaluator):
         same solves (NaN without ``soft_power``).
         """
         layouts = self.problem.check_layouts(layouts)
+        if len(self.tasks) < self.problem.n_tasks:
+            self.check_open(int(np.setdiff1d(np.arange(self.problem.n_tasks), self.tasks)[0]))
         self.afford(len(layouts) * self.problem.n_tasks)  # all or nothing; charged task by task
         per_task = [self.evaluate(t, layouts, soft_power) for t in range(self.problem.n_tasks)]
         worst = np.max([d.max_u for d in per_task], axis=0)
@@ -129,15 +131,24 @@ class PlanResult:
     trace: np.ndarray  # (rows, 4): TracedEvaluator.TRACE_COLUMNS
     info: dict = field(default_factory=dict)  # planner-specific figures (gaps, iterations, ...)
     reward_bell: np.ndarray | None = None  # (n_tasks,) the reference code's bell reward
+    held_out: np.ndarray | None = None  # held-out track: the tasks acted on without samples
+
+    @property
+    def scored_tasks(self) -> np.ndarray:
+        """The tasks the objective is taken over: the held-out ones in that track, else all."""
+        return np.arange(len(self.layouts)) if self.held_out is None else self.held_out
 
     @property
     def objective(self) -> float:
-        """Mean over tasks (per-task) or worst task (shared) of the max deformation."""
-        return float(self.max_deformation.max() if self.mode == "shared" else self.max_deformation.mean())
+        """Mean over tasks (per-task; over the held-out tasks in that track) or worst task (shared)."""
+        u = self.max_deformation[self.scored_tasks]
+        return float(u.max() if self.mode == "shared" else u.mean())
 
     def summary(self) -> dict[str, Any]:
         return {"planner": self.planner, "case": self.case, "material": self.material,
                 "mode": self.mode, "seed": self.seed, "budget": self.budget, "samples": self.samples,
+                "held_out_tasks": None if self.held_out is None else self.held_out.tolist(),
+                "objective_m": self.objective,
                 "mean_max_deformation_m": float(self.max_deformation.mean()),
                 "worst_max_deformation_m": float(self.max_deformation.max()),
                 "mean_reward": float(self.reward.mean()), "config": self.config, "info": self.info,
@@ -170,15 +181,33 @@ class Planner(ABC):
         """
 
     def solve(self, problem: Problem, budget: int | None, seed: int = 0,
-              mode: str = "per-task") -> PlanResult:
+              mode: str = "per-task", train_tasks=None) -> PlanResult:
+        """Plan, check and score. ``train_tasks`` (held-out track, per-task mode): the planner may
+        evaluate only these tasks and acts on the others with zero samples; a layout it leaves at -1
+        on a held-out task becomes the best layout of the nearest training task
+        (:func:`solvers.transfer.fill_held_out`), and the objective is taken over the held-out tasks."""
+        from solvers.transfer import fill_held_out
+
         if mode not in self.modes:
             raise PlannerError(f"planner '{self.name}' does not support mode '{mode}' "
                                f"(supports: {', '.join(self.modes)})")
         if budget is not None and budget <= 0:
             raise CaseError("--budget", "", f"must be positive, got {budget}")
-        ev = TracedEvaluator(problem, budget)
+        held = None
+        if train_tasks is not None:
+            if mode != "per-task":
+                raise PlannerError("the held-out track is per-task: each task gets its own layout")
+            held = np.setdiff1d(np.arange(problem.n_tasks), np.asarray(train_tasks, dtype=np.int64))
+            if len(held) == 0:
+                raise PlannerError("the held-out track needs at least one task outside the training tasks")
+        ev = TracedEvaluator(problem, budget, train_tasks)
         layouts, info = self.plan(problem, ev, np.random.default_rng(seed), mode)
-        layouts = problem.check_layouts(np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents))
+        layouts = np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents)
+        if held is not None:
+            layouts, filled = fill_held_out(problem, layouts, ev.tasks)
+            if filled:
+                info = {**info, "held_out_from": "nearest training task's best layout"}
+        layouts = problem.check_layouts(layouts)
         if mode == "shared" and not (layouts == layouts[0]).all():
             raise PlannerError(f"planner '{self.name}' returned different layouts in shared mode")
         maxima = np.vstack([problem.oracle.evaluate(t, layouts[t:t + 1]) for t in range(problem.n_tasks)])
@@ -186,7 +215,7 @@ class Planner(ABC):
         return PlanResult(self.name, _config_dict(self.config), self.config.hash(), problem.name,
                           problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
                           scored.max_u, scored.reward_gaussian,
-                          np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell)
+                          np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell, held)
 
 
 def _config_dict(config: PlannerConfig) -> dict:

@@ -5,12 +5,16 @@
 vectors (below) and its fixture *positions* in metres relative to the part's bounding-box corner
 (with the box size, so positions can also be mapped in box-normalised coordinates), plus a
 ``sources`` list with the samples each source solve spent; ``library_samples`` is their sum. These
-offline samples are reported apart from the online ones (``info["library_samples"]``). The default
-file is ``~/.cache/fixbench/cbr_library.json`` (``DEFAULT_LIBRARY``); ``Config.library`` names
-another. A missing file is built on first use from ``Config.bootstrap`` (the four ``*_small``
-catalog cases, ``bootstrap_budget`` samples per task; about a minute). Mind that a query on one
-of those cases then finds its own offline solutions: for a fair comparison build the library on
-other parts or materials (leave-one-out) and report ``library_samples``. Each entry also keeps
+offline samples are reported apart from the online ones (``info["library_samples"]``).
+``Config.library`` names the file; a missing file is built there on first use from
+``Config.bootstrap``. Without a path the library is built from ``bootstrap`` in memory (kept for
+the process, never written: no state outside the run) (the four ``*_small`` catalog cases,
+``bootstrap_budget`` samples per task; about a minute).
+
+Two honest settings (``exclude``): ``"part"`` (default) leaves the query's part out (transfer
+between parts); ``"task"`` leaves out only the query's own task of the same case and material, so
+the library may hold other tasks, materials and variants of the same part (what CBR is for:
+variations of one product); ``"none"`` uses every entry (a check of the library, not a benchmark). Each entry also keeps
 ``score_m``, the harness's score of the source layout, for reports only: retrieval never reads it.
 
 **Features** (each a plain number; distances are Euclidean on the concatenation, each block
@@ -59,15 +63,16 @@ from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from solvers.qp import coordinate_descent
 from solvers.registry import available, get, register
 
-DEFAULT_LIBRARY = Path.home() / ".cache" / "fixbench" / "cbr_library.json"
 TASK_DIMS = 4
+_MEMORY: dict[tuple, dict] = {}  # the in-memory library of this process (one bootstrap setting)
 FORMAT = 1
 
 
 @dataclass(frozen=True)
 class CBRConfig(PlannerConfig):
     library: str = ""
-    """Path of the case library (JSON from build_library); empty: DEFAULT_LIBRARY."""
+    """Path of the case library (JSON from build_library; built there from ``bootstrap`` if missing);
+    empty: built from ``bootstrap`` in memory for this process, never written."""
 
     bootstrap: tuple[str, ...] = ("fan_small", "wing_panel_small", "wing_spar_small", "bus_panel_small")
     """Cases (catalog material) solved into a new library when the library file does not exist."""
@@ -96,9 +101,10 @@ class CBRConfig(PlannerConfig):
     pool: int = 5
     """Candidates per agent, nearest to its pad, that coordinate descent may swap in."""
 
-    exclude_same_part: bool = True
-    """Leave one part out: ignore library entries of the query's own part, so that a benchmark
-    measures transfer between parts instead of looking up the query's own offline solutions."""
+    exclude: str = "part"
+    """Which library entries a query may not use: "part" (leave one part out: transfer between
+    parts), "task" (only the query's own task of the same case and material) or "none" (everything:
+    a library check, not a benchmark setting: the query finds its own offline solutions)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -160,14 +166,14 @@ def features(problem: Problem, task: int, cfg: CBRConfig) -> np.ndarray:
 # library
 # ---------------------------------------------------------------------------------------------
 def build_library(problems: list[Problem], planner: str | None = None, budget: int | None = None,
-                  path: str | Path = DEFAULT_LIBRARY, seed: int = 0,
+                  path: str | Path | None = None, seed: int = 0,
                   per_task_budget: int | None = None) -> dict:
     """Solve each problem per task with ``planner`` and save the library.
 
     Each problem gets ``budget`` samples, or ``per_task_budget`` times its task count when given.
 
     Default planner: ``greedy`` if registered, else ``random``. Returns the library (also written
-    to ``path`` as JSON, parent folders created).
+    to ``path`` as JSON, parent folders created, when a path is given).
     """
     name = planner or ("greedy" if "greedy" in available() else "random")
     solver = get(name)()
@@ -189,6 +195,8 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
                 "box_m": size.tolist(), "score_m": float(result.max_deformation[t])})
     library = {"format": FORMAT, "library_samples": int(sum(s["samples"] for s in sources)),
                "sources": sources, "entries": entries}
+    if path is None:
+        return library
     path = Path(path).expanduser()
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
@@ -253,21 +261,28 @@ class CaseBasedReasoning(Planner):
         cfg = self.config
         if cfg.k < 1:
             raise PlannerError(f"planner 'cbr': k must be at least 1, got {cfg.k}")
-        path = Path(cfg.library or DEFAULT_LIBRARY).expanduser()
-        if not path.exists() and cfg.bootstrap:
-            build_library([load_problem(c) for c in cfg.bootstrap], budget=None, path=path,
-                          per_task_budget=cfg.bootstrap_budget)
-        library = load_library(path)
+        if cfg.exclude not in ("part", "task", "none"):
+            raise PlannerError(f"planner 'cbr': exclude must be 'part', 'task' or 'none', got '{cfg.exclude}'")
+        library, where = self._library(cfg)
+        me = (problem.name, problem.spec.material.name)
         entries = [e for e in library["entries"]
-                   if not (cfg.exclude_same_part and e["part"] == problem.spec.part)]
+                   if not (e["part"] == problem.spec.part if cfg.exclude == "part" else False)]
         if not entries:
-            raise PlannerError(f"planner 'cbr': the library {path} holds no case of another part "
-                               "(set exclude_same_part=false to use same-part cases)")
+            raise PlannerError(f"planner 'cbr': the library {where} holds no case of another part "
+                               "(set exclude=task to use same-part cases)")
         tree = cKDTree(np.array([_entry_vector(e, cfg) for e in entries]))
         k = min(cfg.k, len(entries))
         query = np.array([features(problem, t, cfg) for t in range(problem.n_tasks)])
-        dist, idx = tree.query(query, k=k)
-        dist, idx = dist.reshape(problem.n_tasks, k), idx.reshape(problem.n_tasks, k)
+        dist, idx = tree.query(query, k=min(len(entries), k + 1))
+        dist, idx = dist.reshape(problem.n_tasks, -1), idx.reshape(problem.n_tasks, -1)
+        if cfg.exclude == "task":  # the query's own task may sit in the library: never retrieve it
+            own = np.array([[(entries[i]["case"], entries[i]["material"], entries[i]["task"]) == (*me, t)
+                             for i in row] for t, row in enumerate(idx)])
+            order = np.argsort(own, axis=1, kind="stable")
+            dist, idx = np.take_along_axis(dist, order, 1), np.take_along_axis(idx, order, 1)
+            if own[np.arange(problem.n_tasks), order[:, 0]].any():
+                raise PlannerError("planner 'cbr': the library holds nothing but the query's own tasks")
+        dist, idx = dist[:, :k], idx[:, :k]
         info = {"library_samples": library["library_samples"], "distance": dist[:, 0].tolist(),
                 "neighbours": [[f"{entries[i]['case']}/{entries[i]['material']}/task{entries[i]['task']}"
                                 for i in row] for row in idx]}
@@ -278,11 +293,34 @@ class CaseBasedReasoning(Planner):
             layout = self._polish(problem, ev, options, budget, None, cfg)
             return np.tile(layout, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
+        left = len(ev.tasks)  # tasks still to polish; held-out tasks get the adaptation, no sample
         for t in range(problem.n_tasks):
             options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx[t]])
-            budget = int(min(cfg.polish_samples, ev.remaining // (problem.n_tasks - t)))
+            if t not in ev.tasks:
+                layouts[t] = options[0]
+                continue
+            budget = int(min(cfg.polish_samples, ev.remaining // left))
+            left -= 1
             layouts[t] = self._polish(problem, ev, options, budget, t, cfg)
         return layouts, info
+
+    @staticmethod
+    def _library(cfg: CBRConfig) -> tuple[dict, str]:
+        """(library, where it came from): the named file (built there if missing), else in memory."""
+        if cfg.library:
+            path = Path(cfg.library).expanduser()
+            if not path.exists() and cfg.bootstrap:
+                build_library([load_problem(c) for c in cfg.bootstrap], budget=None, path=path,
+                              per_task_budget=cfg.bootstrap_budget)
+            return load_library(path), str(path)
+        key = (cfg.bootstrap, cfg.bootstrap_budget)
+        if not cfg.bootstrap:
+            raise PlannerError("planner 'cbr': no library: set library=PATH or bootstrap cases")
+        if key not in _MEMORY:
+            _MEMORY.clear()
+            _MEMORY[key] = build_library([load_problem(c) for c in cfg.bootstrap], budget=None,
+                                         per_task_budget=cfg.bootstrap_budget)
+        return _MEMORY[key], "built in memory from " + ", ".join(cfg.bootstrap)
 
     @staticmethod
     def _polish(problem: Problem, ev: TracedEvaluator, options: list[np.ndarray], budget: int,

@@ -43,6 +43,10 @@ evaluated only as far as it fits, a uniform random sample. A budget with less th
 task (per task, or for the shared layout) raises :class:`~solvers.base.PlannerError`. A GA that
 can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
 
+Transfer (``transfer`` k > 0, per-task mode): tasks are solved in order, and the first population
+of each task holds the best layouts of the k already-solved tasks nearest by task features
+(:mod:`solvers.transfer`), encoded, beside random individuals; restarts start fresh.
+
 Per-task mode returns ``ev.best_layout``, the best layout ever evaluated on each task (not the
 final population); shared mode returns ``ev.shared_layout``. ``info`` has ``generations``,
 ``restarts`` and ``n_eval`` (samples spent) per optimisation run: one run per task, or one run in
@@ -60,6 +64,7 @@ from pymoo.algorithms.soo.nonconvex.ga import GA
 from pymoo.algorithms.soo.nonconvex.pso import PSO
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.problem import Problem as PymooProblem
+from pymoo.core.sampling import Sampling
 from pymoo.core.termination import TerminateIfAny
 from pymoo.operators.crossover.sbx import SBX
 from pymoo.operators.mutation.pm import PM
@@ -75,6 +80,7 @@ from scipy.spatial import cKDTree
 from cases.problem import Problem
 from solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
 from solvers.registry import register
+from solvers.transfer import warm_layouts
 
 
 class _LayoutProblem(PymooProblem):
@@ -99,36 +105,41 @@ class _EvolutionaryPlanner(Planner):
     """Shared driver: one pymoo run per task (per-task) or one on the worst task (shared)."""
 
     @abstractmethod
-    def _algorithm(self, size: int) -> Algorithm:
-        """The configured pymoo algorithm with population ``size`` (a fresh one per run)."""
+    def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
+        """The configured pymoo algorithm with population ``size`` (a fresh one per run); ``seeds``
+        (encoded layouts) go into the first population, the rest is sampled as usual."""
 
     @abstractmethod
-    def _encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable]:
-        """(xl, xu, vtype, decode): bounds, variable type and population -> layouts."""
+    def _encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable, Callable]:
+        """(xl, xu, vtype, decode, encode): bounds, variable type, population -> layouts and back."""
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         p = cfg.soft_power or None
-        xl, xu, vtype, decode = self._encoding(problem)
+        xl, xu, vtype, decode, encode = self._encoding(problem)
         if mode == "shared":
             require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            runs = [(lambda layouts: ev.shared_fitness(layouts, p),
+            runs = [(None, lambda layouts: ev.shared_fitness(layouts, p),
                      cfg.evals_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks))]
         else:
-            require_budget(self.name, ev.remaining, problem.n_tasks, "one layout per task")
-            shares = split_budget(ev.budget, problem.n_tasks, cfg.evals_per_task)
-            runs = [(lambda layouts, t=t: ev.fitness(t, layouts, p), n) for t, n in enumerate(shares)]
+            require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
+            shares = split_budget(ev.budget, len(ev.tasks), cfg.evals_per_task)
+            runs = [(t, lambda layouts, t=t: ev.fitness(t, layouts, p), n) for t, n in zip(ev.tasks, shares)]
         generations, n_eval, restarts = [], [], []
-        for score, allowance in runs:
+        for task, score, allowance in runs:
             spent, left, gens, starts = ev.samples, allowance, 0, 0
+            warm = np.empty((0, problem.n_agents))
+            if task is not None and cfg.transfer:  # read when the task's turn comes: earlier tasks are solved
+                warm = warm_layouts(problem, ev.best, ev.best_layout, task, cfg.transfer)
             while left > 0:
                 size = max(2, min(cfg.pop_size, left // cfg.min_generations))
+                seeds = encode(warm[:size]) if starts == 0 and len(warm) else None
                 problem_ = _LayoutProblem(xl, xu, vtype, decode, score, left)
                 stall = RobustTermination(SingleObjectiveSpaceTermination(0.0, only_feas=False),
                                           period=cfg.stall_generations or 1)
                 budget_end = MaximumFunctionCallTermination(left)
                 termination = TerminateIfAny(budget_end, stall) if cfg.stall_generations else budget_end
-                res = minimize(problem_, self._algorithm(size), termination, seed=int(rng.integers(2**31)),
+                res = minimize(problem_, self._algorithm(size, seeds), termination, seed=int(rng.integers(2**31)),
                                verbose=False, copy_termination=False)
                 gens, starts, left = gens + int(res.algorithm.n_gen), starts + 1, problem_.left
                 if not (cfg.stall_generations and stall.has_terminated()):
@@ -158,6 +169,25 @@ class EvolutionConfig(PlannerConfig):
     stall_generations: int = 30
     """Restart with a fresh population after this many generations without a better best (0: never)."""
 
+    transfer: int = 0
+    """Warm start: the first population of a task holds the best layouts of this many solved tasks
+    nearest by task features (0: random populations only)."""
+
+
+class _Seeded(Sampling):
+    """A sampling whose first individuals are given (warm starts) and the rest drawn by ``base``."""
+
+    def __init__(self, base: Sampling, seeds: np.ndarray | None):
+        super().__init__()
+        self.base, self.seeds = base, seeds
+
+    def _do(self, problem, n_samples, **kwargs):
+        X = np.asarray(self.base._do(problem, n_samples, **kwargs), dtype=float)
+        if self.seeds is not None and len(self.seeds):
+            k = min(len(self.seeds), n_samples)
+            X[:k] = self.seeds[:k]
+        return X
+
 
 @dataclass(frozen=True)
 class GAConfig(EvolutionConfig):
@@ -180,9 +210,9 @@ class GeneticPlanner(_EvolutionaryPlanner):
     description = "pymoo genetic algorithm, one integer gene per agent (index into its set)"
     Config = GAConfig
 
-    def _algorithm(self, size: int) -> Algorithm:
+    def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
         cfg = self.config
-        return GA(pop_size=size, sampling=IntegerRandomSampling(),
+        return GA(pop_size=size, sampling=_Seeded(IntegerRandomSampling(), seeds),
                   crossover=SBX(prob=cfg.crossover_prob, eta=cfg.crossover_eta, vtype=float,
                                 repair=RoundingRepair()),
                   mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
@@ -196,7 +226,10 @@ class GeneticPlanner(_EvolutionaryPlanner):
             genes = np.rint(X).astype(np.int64)
             return np.column_stack([s[genes[:, a]] for a, s in enumerate(sets)])
 
-        return np.zeros(len(sets)), xu, int, decode
+        def encode(layouts: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.searchsorted(s, layouts[:, a]) for a, s in enumerate(sets)]).astype(float)
+
+        return np.zeros(len(sets)), xu, int, decode, encode
 
 
 @dataclass(frozen=True)
@@ -226,9 +259,9 @@ class SwarmPlanner(_EvolutionaryPlanner):
     description = "pymoo particle swarm, a point in the plane per agent snapped to its nearest candidate"
     Config = PSOConfig
 
-    def _algorithm(self, size: int) -> Algorithm:
+    def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
         cfg = self.config
-        return PSO(pop_size=size, sampling=LHS(), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
+        return PSO(pop_size=size, sampling=_Seeded(LHS(), seeds), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
                    adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)
 
     def _encoding(self, problem: Problem):
@@ -243,4 +276,7 @@ class SwarmPlanner(_EvolutionaryPlanner):
             return np.column_stack([s[t.query(X[:, 2 * a:2 * a + 2])[1]]
                                     for a, (s, t) in enumerate(zip(sets, trees))])
 
-        return xl, xu, float, decode
+        def encode(layouts: np.ndarray) -> np.ndarray:
+            return problem.candidates[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
+
+        return xl, xu, float, decode, encode

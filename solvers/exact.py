@@ -93,10 +93,10 @@ class Exact(Planner):
     # -- enumeration --------------------------------------------------------------------------------
 
     def _enumerate(self, problem: Problem, ev: TracedEvaluator, mode: str):
-        n, T = problem.joint_size, problem.n_tasks
+        n, T = problem.joint_size, (problem.n_tasks if mode == "shared" else len(ev.tasks))
         require_budget(self.name, ev.remaining, n * T, f"enumerating {n:,} layouts x {T} tasks")
-        best = np.full(T, np.inf)
-        best_layout = np.zeros((T, problem.n_agents), dtype=np.int64)
+        best = np.full(problem.n_tasks, np.inf)
+        best_layout = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
         with tqdm(total=n * T, unit="layout", unit_scale=True, desc=f"exact {problem.name}",
                   disable=None, delay=2.0, leave=False) as bar:
             for start in range(0, n, self.config.chunk):
@@ -107,7 +107,7 @@ class Exact(Planner):
                     if values[i] < best[0]:
                         best[:], best_layout[:] = values[i], layouts[i]
                 else:
-                    for task in range(T):
+                    for task in ev.tasks:
                         values = ev.evaluate(task, layouts).max_u
                         i = int(np.argmin(values))
                         if values[i] < best[task]:

@@ -20,6 +20,11 @@ random starts end within 5 %). The soft max credits the improved blade, and the 
 other to the symmetric optimum (every start within 5 % for 2 <= p <= 16). ``soft_power = 0``
 descends on the max itself.
 
+Transfer (``transfer`` k > 0, per-task mode): tasks are solved in order, and the first descent of
+each task starts from the best of the best layouts of the k already-solved tasks nearest by task
+features (:mod:`solvers.transfer`; each costs its one sample) instead of a random layout: the
+chance the learners have of carrying what they found from one drilling position to the next.
+
 Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
 shared mode runs it once on the worst-over-tasks objective (``shared_fitness``, n_tasks samples
 per layout). Budget: at least one layout must fit (one sample per task, or n_tasks in shared mode),
@@ -38,6 +43,7 @@ import numpy as np
 from cases.problem import Problem
 from solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
 from solvers.registry import register
+from solvers.transfer import warm_layouts
 
 
 @dataclass(frozen=True)
@@ -47,6 +53,10 @@ class GreedyConfig(PlannerConfig):
 
     soft_power: float = 4.0
     """Exponent p of the power mean the moves minimise (module doc); 0 descends on the max itself."""
+
+    transfer: int = 0
+    """Warm start: the first descent of a task starts from the best layouts of this many solved tasks
+    nearest by task features (0: every descent starts at random)."""
 
 
 @register
@@ -61,31 +71,40 @@ class Greedy(Planner):
             require_budget(self.name, ev.remaining, T, "one shared layout on every task")
             runs = self._restarts(problem, lambda L: ev.shared_fitness(L, p), T, ev.remaining, rng)
             return np.tile(ev.shared_layout, (T, 1)), _info([runs])
-        require_budget(self.name, ev.remaining, T, "one layout per task")
+        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
         all_runs = []
-        for task, budget in enumerate(split_budget(ev.budget, T, math.inf)):
-            all_runs.append(self._restarts(problem, lambda L, t=task: ev.fitness(t, L, p), 1, budget, rng))
+        for task, budget in zip(ev.tasks, split_budget(ev.budget, len(ev.tasks), math.inf)):
+            warm = warm_layouts(problem, ev.best, ev.best_layout, task, self.config.transfer)
+            all_runs.append(self._restarts(problem, lambda L, t=task: ev.fitness(t, L, p), 1, budget, rng, warm))
         return ev.best_layout.copy(), _info(all_runs)
 
-    def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
-        """Run restarts within ``budget``: [(sweeps, converged) per restart]. ``ev`` keeps the best."""
+    def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
+                  warm: np.ndarray | None = None):
+        """Run restarts within ``budget``: [(sweeps, converged) per restart]. ``ev`` keeps the best.
+        The first starts from the best of the ``warm`` layouts when there are any."""
         runs, spent = [], 0
-        for _ in range(self.config.restarts):
+        for i in range(self.config.restarts):
             if budget - spent < cost:
                 break
-            sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng)
+            start = None
+            if i == 0 and warm is not None and len(warm):
+                start = warm[:int(min(len(warm), (budget - spent) // cost))]  # what the budget allows
+            sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng, start)
             spent += used
             runs.append((sweeps, converged))
         return runs
 
 
-def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator):
-    """One restart: (sweeps, converged, samples spent) within ``budget`` samples."""
+def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
+             start: np.ndarray | None = None):
+    """One restart from the best of ``start`` (else a random layout): (sweeps, converged, samples
+    spent) within ``budget`` samples."""
     n = problem.n_agents
-    layout = random_layouts(problem, rng, 1)[0]
-    value = evaluate(layout[None])[0]
-    spent, checks, since = cost, 0, 0  # since: agents checked since the last move
-    a = 0
+    starts = random_layouts(problem, rng, 1) if start is None else start
+    values = evaluate(starts)
+    layout, value = starts[int(np.argmin(values))], float(np.min(values))
+    spent, checks, since = cost * len(starts), 0, 0  # since: agents checked since the last move
+    a = int(rng.integers(n))  # the first agent to move: a small budget must not always favour agent 0
     while since < n:
         alts = problem.action_sets[a][problem.action_sets[a] != layout[a]]
         fit = len(alts) if math.isinf(budget) else int((budget - spent) // cost)

@@ -536,7 +536,8 @@ class _QPlanner(Planner):
         if cfg.optima and len(cfg.optima) != problem.n_tasks:
             raise PlannerError(f"optima: {len(cfg.optima)} values for {problem.n_tasks} tasks")
         device = torch.device(cfg.device)
-        ids = train_ids(problem, cfg)
+        # the held-out track restricts the evaluator to the training tasks; else the config chooses
+        ids = ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
         n, n_train = problem.n_agents, len(ids)
         fit = cfg.episodes if math.isinf(ev.remaining) else int(ev.remaining // n_train)
         if fit < 1:

@@ -112,25 +112,25 @@ class QPPlanner(Planner):
         cand_sorted = cand[order]
         data = read_compliance(self.name, problem, ev, cand_sorted)
         per_call = len(data)
-        tasks = list(range(problem.n_tasks))
-        require_budget(self.name, ev.remaining, per_call * problem.n_tasks, "the unconstrained responses")
+        tasks = list(range(problem.n_tasks)) if mode == "shared" else ev.tasks.tolist()
+        require_budget(self.name, ev.remaining, per_call * len(tasks), "the unconstrained responses")
         resp = {t: {f: ev.unconstrained(f, t) for f in data} for t in tasks}
         pos = np.empty_like(order)
         pos[order] = np.arange(len(cand))  # candidate k of `cand` is column pos[k] of the data
         groups = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
         qp = RelaxedQP(data, pos, groups, len(cand), cfg, 1 if mode == "per-task" else problem.n_tasks)
         info = {"compliance_samples": int(sum(d.per * len(cand) for d in data.values())),
-                "unconstrained_samples": per_call * problem.n_tasks, "candidates_read": len(cand),
+                "unconstrained_samples": per_call * len(tasks), "candidates_read": len(cand),
                 "qp_status": []}
         if mode == "shared":
             mass = qp.masses([resp[t] for t in tasks], info)
             budget = int(min(cfg.polish_samples, ev.remaining // problem.n_tasks))
             layout = polish(problem, ev, sets, cand, mass, cfg, None, budget)
             return np.tile(layout, (problem.n_tasks, 1)), info
-        layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
-        for t in tasks:
+        layouts = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
+        for i, t in enumerate(tasks):
             mass = qp.masses([resp[t]], info)
-            budget = int(min(cfg.polish_samples, ev.remaining // (problem.n_tasks - t)))  # fair share
+            budget = int(min(cfg.polish_samples, ev.remaining // (len(tasks) - i)))  # fair share
             layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t, budget)
         return layouts, info
 

@@ -34,8 +34,8 @@ class RandomSearch(Planner):
             for start in range(0, n, cfg.batch):
                 ev.evaluate_shared(random_layouts(problem, rng, min(cfg.batch, n - start)))
             return np.tile(ev.shared_layout, (problem.n_tasks, 1)), {}
-        require_budget(self.name, ev.remaining, problem.n_tasks, "one layout per task")
-        for task, n in enumerate(split_budget(ev.budget, problem.n_tasks, cfg.samples_per_task)):
+        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
+        for task, n in zip(ev.tasks, split_budget(ev.budget, len(ev.tasks), cfg.samples_per_task)):
             layouts = random_layouts(problem, rng, n)  # drawn at once: independent of batch size
             for start in range(0, n, cfg.batch):
                 ev.evaluate(task, layouts[start:start + cfg.batch])

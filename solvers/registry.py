@@ -19,6 +19,7 @@ from solvers.base import Planner, PlannerError
 ENTRY_POINT_GROUP = "fixbench.planners"
 #: built-in planner name -> the module that registers it when imported
 BUILTIN = {"random": "solvers.random_search", "exact": "solvers.exact", "greedy": "solvers.greedy",
+           "local": "solvers.local",
            "ga": "solvers.evolutionary", "pso": "solvers.evolutionary", "qp": "solvers.qp",
            "cbr": "solvers.cbr", "nashq": "solvers.nashq", "iql": "solvers.nashq"}
 _REGISTRY: dict[str, type[Planner]] = {}

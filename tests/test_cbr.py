@@ -38,7 +38,7 @@ def test_library_file_records_positions_and_offline_samples(library):
 
 def test_zero_samples_returns_the_stored_layouts(library):
     source, path, lib = library
-    r = CaseBasedReasoning(library=str(path), polish_samples=0, exclude_same_part=False).solve(source, None, seed=0)
+    r = CaseBasedReasoning(library=str(path), polish_samples=0, exclude="none").solve(source, None, seed=0)
     assert r.samples == 0 and len(r.trace) == 0
     assert r.info["library_samples"] == lib["library_samples"]
     assert np.allclose(r.info["distance"], 0.0)
@@ -49,10 +49,10 @@ def test_zero_samples_returns_the_stored_layouts(library):
 
 def test_polish_is_counted_and_within_budget(library):
     source, path, _ = library
-    r = CaseBasedReasoning(library=str(path), polish_samples=6, exclude_same_part=False).solve(source, 10, seed=0)
+    r = CaseBasedReasoning(library=str(path), polish_samples=6, exclude="none").solve(source, 10, seed=0)
     assert 0 < r.samples <= 10
     assert r.trace[-1, 2] == r.samples
-    s = CaseBasedReasoning(library=str(path), polish_samples=2, exclude_same_part=False).solve(
+    s = CaseBasedReasoning(library=str(path), polish_samples=2, exclude="none").solve(
         source, None, seed=0, mode="shared")
     assert (s.layouts == s.layouts[0]).all() and s.samples <= 2 * source.n_tasks
 
@@ -75,7 +75,7 @@ def test_degrades_with_distance_from_the_library(library):
                "far": load_problem("fan_small")}
     dist, ratio = {}, {}
     for name, q in queries.items():
-        r = CaseBasedReasoning(library=str(path), polish_samples=0, exclude_same_part=False).solve(q, None, seed=0)
+        r = CaseBasedReasoning(library=str(path), polish_samples=0, exclude="none").solve(q, None, seed=0)
         ref = get("greedy")().solve(q, BUILD_BUDGET * q.n_tasks, seed=0)
         dist[name] = float(np.mean(r.info["distance"]))
         ratio[name] = float(r.max_deformation.mean() / ref.max_deformation.mean())

@@ -63,7 +63,7 @@ BAD_MATRICES = [
     ("bad config", TINY.replace('planners = ["random", "greedy"]\n', "")
      + '[[planners]]\nname = "random"\nconfig = {bogus = 1}\n',
      ["planners[0].config", "no setting 'bogus'"]),
-    ("bad mode", TINY + 'mode = "sometimes"\n', ["mode", "per-task or shared"]),
+    ("bad mode", TINY + 'mode = "sometimes"\n', ["mode", "must be one of per-task, shared, held-out"]),
     ("not TOML", TINY + "[[[\n", ["not valid TOML"]),
 ]
 

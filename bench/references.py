@@ -1,0 +1,219 @@
+"""The reference portfolio: an uncounted, large-budget search for the best layout of every task.
+
+``fixbench references build CASE [--material M] [--agents N]`` runs it and writes the shipped
+reference (:mod:`cases.references`); ``fixbench references update DIR`` merges into the shipped
+references every layout of a run directory that beats them (each one re-measured on the oracle,
+never taken from the row on trust).
+
+The portfolio (:class:`Portfolio`), in this order:
+
+1. **Planners with transfer.** Each of ``planners`` (the benchmark's own: ``pso``, ``ga``,
+   ``local``, ``greedy``) solves every task in order with ``samples_per_task`` samples a task and
+   warm starts from the ``transfer`` nearest solved tasks, once per seed; the best layout of each
+   task over all runs is kept.
+2. **Neighbour exchange.** Rounds over the tasks, forward then backward: each task tries the
+   current best layouts of its ``exchange`` nearest tasks (by task features) and its own, and a
+   local search (:func:`solvers.local.local_search`, ``polish_samples`` layouts) polishes the
+   best of them. A better layout found on a task is passed on within the same round. Rounds stop
+   when one brings no improvement (relative 1e-9) or after ``max_rounds``.
+
+Every evaluation is counted for the provenance (``samples``) but none is charged to any planner:
+the portfolio is not a planner of the benchmark, and nothing in it is tuned against a reference.
+A task is ``proven`` only with a proof (``exact`` enumeration, see :func:`check_small`); the
+portfolio alone yields ``best-known``.
+"""
+
+from __future__ import annotations
+
+import datetime
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from cases.problem import Problem, load_problem
+from cases.references import case_fingerprint, load_reference, write_reference
+from cases.spec import resolve_case
+
+
+@dataclass(frozen=True)
+class Portfolio:
+    """Effort of the reference portfolio (the defaults are the shipped references' effort)."""
+
+    planners: tuple[str, ...] = ("pso", "ga", "local", "greedy")
+    """Planners run over all tasks in order, with transfer, in the first phase."""
+
+    samples_per_task: int = 3000
+    """Samples a task of each planner run of the first phase."""
+
+    seeds: tuple[int, ...] = (0, 1)
+    """Seeds of the first phase (each planner runs once per seed)."""
+
+    transfer: int = 3
+    """Solved tasks, nearest by features, that warm-start each task in the first phase."""
+
+    exchange: int = 6
+    """Nearest tasks whose best layouts each task tries in every exchange round."""
+
+    polish_samples: int = 2000
+    """Local-search layouts from the best exchanged layout, per task and round."""
+
+    max_rounds: int = 12
+    """Most exchange rounds (they stop earlier when one improves nothing)."""
+
+    soft_power: float = 4.0
+    """Soft max the exchange's local search descends on (as the planners do)."""
+
+
+@dataclass
+class _Progress:
+    samples: int = 0
+    log: list[dict] = field(default_factory=list)
+
+
+def build(case: str, material: str | None = None, agents: int | None = None, effort: Portfolio | None = None,
+          echo=print, problem: Problem | None = None) -> dict:
+    """Run the portfolio on a catalog case; returns the reference record (not yet written)."""
+    from solvers.local import LocalConfig, local_search
+    from solvers.registry import get
+    from solvers.transfer import nearest_tasks
+
+    effort = effort or Portfolio()
+    p = problem or load_problem(case, material=material, agents=agents)
+    t0 = time.perf_counter()
+    T, prog = p.n_tasks, _Progress()
+    best = np.full(T, np.inf)
+    layout = np.zeros((T, p.n_agents), dtype=np.int64)
+
+    def offer(task: int, layouts: np.ndarray, values: np.ndarray) -> bool:
+        i = int(np.argmin(values))
+        if values[i] < best[task] * (1 - 1e-9):
+            best[task], layout[task] = values[i], layouts[i]
+            return True
+        return False
+
+    for seed in effort.seeds:
+        for name in effort.planners:
+            t = time.perf_counter()
+            res = get(name)(transfer=effort.transfer).solve(p, effort.samples_per_task * T, seed=seed)
+            prog.samples += res.samples + T  # + scoring
+            improved = sum(offer(k, res.layouts[k:k + 1], res.max_deformation[k:k + 1]) for k in range(T))
+            prog.log.append({"phase": "planner", "planner": name, "seed": seed, "transfer": effort.transfer,
+                             "samples": int(res.samples), "mean_m": float(res.max_deformation.mean()),
+                             "tasks_improved": int(improved), "wall_s": round(time.perf_counter() - t, 1)})
+            echo(f"{p.name}/{p.spec.material.name}: {name} seed {seed}: "
+                 f"mean {1e6 * res.max_deformation.mean():.4g} um, "
+                 f"reference mean {1e6 * best.mean():.4g} um ({time.perf_counter() - t:.0f} s)")
+
+    cfg = LocalConfig(soft_power=effort.soft_power)
+    rng = np.random.default_rng(effort.seeds[0])
+    power = effort.soft_power or None
+    neighbours = [nearest_tasks(p, np.delete(np.arange(T), k), k, effort.exchange) for k in range(T)]
+    for rnd in range(effort.max_rounds):
+        t, improved = time.perf_counter(), 0
+        order = range(T) if rnd % 2 == 0 else range(T - 1, -1, -1)
+        for k in order:
+            tried = np.unique(np.vstack([layout[neighbours[k]], layout[k:k + 1]]), axis=0)
+            d = p.oracle.evaluate(k, tried)
+            prog.samples += len(tried)
+            better = offer(k, tried, d[:, 3])
+            found = []
+
+            def fitness(L, k=k, found=found):
+                m = p.oracle.evaluate(k, L, power)
+                found.append((L, m[:, 3]))
+                return m[:, 5] if power else m[:, 3]
+
+            local_search(p, fitness, effort.polish_samples, layout[k:k + 1].copy(), rng, cfg)
+            for L, u in found:
+                prog.samples += len(L)
+                better |= offer(k, L, u)
+            improved += bool(better)
+        prog.log.append({"phase": "exchange", "round": rnd + 1, "tasks_improved": improved,
+                         "mean_m": float(best.mean()), "wall_s": round(time.perf_counter() - t, 1)})
+        echo(f"{p.name}/{p.spec.material.name}: exchange round {rnd + 1}: {improved} tasks improved, "
+             f"reference mean {1e6 * best.mean():.4g} um ({time.perf_counter() - t:.0f} s)")
+        if improved == 0:
+            break
+    final = np.array([p.oracle.evaluate(k, layout[k:k + 1])[0, 3] for k in range(T)])
+    return {"format": 1, "case": p.name, "material": p.spec.material.name, "agents": p.n_agents, "n_tasks": T,
+            "case_fingerprint": case_fingerprint(case, p.spec.material.name, p.n_agents),
+            "tasks": [{"layout": layout[k].tolist(), "max_deformation_m": float(final[k]), "status": "best-known",
+                       "lower_bound_m": None} for k in range(T)],
+            "provenance": [{"action": "build", "date": datetime.date.today().isoformat(),
+                            "portfolio": _jsonable(asdict(effort)), "samples": int(prog.samples),
+                            "wall_s": round(time.perf_counter() - t0, 1), "steps": prog.log}]}
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def build_and_write(case: str, material: str | None, agents: int | None, effort: Portfolio | None = None,
+                    echo=print, folder=None) -> str:
+    """Build a reference, keep per task the better of it and the shipped one, write it; returns the path."""
+    resolve_case(case)
+    ref = build(case, material, agents, effort, echo)
+    old = load_reference(ref["case"], ref["material"], ref["agents"], folder)
+    if old is not None:
+        kept = 0
+        for k, (new, was) in enumerate(zip(ref["tasks"], old["tasks"])):
+            if was["max_deformation_m"] < new["max_deformation_m"]:
+                ref["tasks"][k] = was
+                kept += 1
+        ref["provenance"] = old["provenance"] + [{**ref["provenance"][0], "tasks_kept_from_before": kept}]
+    return str(write_reference(ref, folder))
+
+
+def update(run_dir, echo=print, folder=None) -> dict:
+    """Merge into the shipped references every layout of ``run_dir`` that beats them.
+
+    Rows of catalog cases in per-task or held-out mode are read; a task whose recorded max
+    deformation is below the reference's is re-measured on the oracle (uncounted) and replaces the
+    reference only if the measurement confirms it. Returns {reference file: tasks replaced}.
+    """
+    import json
+    from pathlib import Path
+
+    from bench.matrix import task_subset
+    from bench.store import load_results
+    from cases.references import reference_path
+    from cases.spec import case_names
+
+    rows = load_results(run_dir)
+    rows = rows[(rows["error"].fillna("") == "") & rows["mode"].isin(["per-task", "held-out"])
+                & rows["case"].isin(case_names()) & rows["per_task_m"].notna()]
+    changed: dict[str, int] = {}
+    for (case, material, agents), group in rows.groupby(["case", "material", "agents"], sort=True):
+        ref = load_reference(case, material, int(agents), folder)
+        if ref is None:
+            echo(f"{case}/{material}/{int(agents)} agents: no shipped reference; skipped "
+                 f"({reference_path(case, material, int(agents), folder).name})")
+            continue
+        claims: dict[int, list] = {}  # task -> [(claimed u, layout, row)]
+        for _, row in group.iterrows():
+            u, layouts = json.loads(row["per_task_m"]), json.loads(row["layouts"])
+            ids = task_subset(ref["n_tasks"], len(u))
+            for k, t in enumerate(ids):
+                if u[k] < ref["tasks"][t]["max_deformation_m"] * (1 - 1e-9):
+                    claims.setdefault(t, []).append((u[k], layouts[k], row))
+        if not claims:
+            continue
+        p = load_problem(case, material=material, agents=int(agents))
+        replaced = []
+        for t, options in sorted(claims.items()):
+            for _, lay, row in sorted(options, key=lambda o: o[0]):
+                u = float(p.oracle.evaluate(t, p.check_layouts([lay]))[0, 3])
+                if u < ref["tasks"][t]["max_deformation_m"] * (1 - 1e-9):
+                    ref["tasks"][t] = {"layout": [int(x) for x in lay], "max_deformation_m": u,
+                                       "status": "best-known", "lower_bound_m": None}
+                    replaced.append({"task": t, "planner": row["planner"], "cell": row["cell"]})
+                    break
+        if replaced:
+            ref["provenance"].append({"action": "update", "date": datetime.date.today().isoformat(),
+                                      "run_dir": Path(run_dir).name, "tasks_replaced": len(replaced),
+                                      "by": sorted({r["planner"] for r in replaced})})
+            path = write_reference(ref, folder)
+            changed[str(path)] = len(replaced)
+            echo(f"{path.name}: {len(replaced)} tasks replaced by better layouts of {Path(run_dir).name}")
+    return changed
