@@ -267,6 +267,15 @@ def references_update(run_dir, out) -> None:
     click.echo(f"{sum(changed.values())} tasks replaced in {len(changed)} reference files")
 
 
+@references.command("rescore")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def references_rescore(run_dir) -> None:
+    """Recompute RUN_DIR's regret columns against the shipped references as they are now."""
+    from bench.references import rescore
+
+    rescore(run_dir, echo=click.echo)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

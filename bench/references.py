@@ -3,7 +3,8 @@
 ``fixbench references build CASE [--material M] [--agents N]`` runs it and writes the shipped
 reference (:mod:`cases.references`); ``fixbench references update DIR`` merges into the shipped
 references every layout of a run directory that beats them (each one re-measured on the oracle,
-never taken from the row on trust).
+never taken from the row on trust) and rescores the run's rows against them; ``fixbench references
+rescore DIR`` rescores another run directory against the shipped references as they are now.
 
 The portfolio (:class:`Portfolio`), in this order:
 
@@ -200,6 +201,9 @@ def update(run_dir, echo=print, folder=None) -> dict:
         if not claims:
             continue
         p = load_problem(case, material=material, agents=int(agents))
+        if p.n_tasks != ref["n_tasks"]:
+            echo(f"{case}/{material}: the reference has {ref['n_tasks']} tasks, the case {p.n_tasks}; skipped")
+            continue
         replaced = []
         for t, options in sorted(claims.items()):
             for _, lay, row in sorted(options, key=lambda o: o[0]):
@@ -216,4 +220,78 @@ def update(run_dir, echo=print, folder=None) -> dict:
             path = write_reference(ref, folder)
             changed[str(path)] = len(replaced)
             echo(f"{path.name}: {len(replaced)} tasks replaced by better layouts of {Path(run_dir).name}")
+    if changed:
+        rescore(run_dir, echo)
     return changed
+
+
+class _Scored:
+    """What :func:`bench.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
+
+    def __init__(self, row: dict, trace: np.ndarray):
+        import json
+
+        self.max_deformation = np.asarray(json.loads(row["per_task_m"]), dtype=float)
+        self.layouts = np.asarray(json.loads(row["layouts"]), dtype=np.int64)
+        self.mode = "per-task" if row["mode"] == "held-out" else row["mode"]
+        n, k = len(self.max_deformation), row.get("heldout_every")
+        self.held_out = None
+        if row["mode"] == "held-out" and k:
+            self.held_out = np.setdiff1d(np.arange(n), np.arange(0, n, int(k)))
+        self.scored_tasks = np.arange(n) if self.held_out is None else self.held_out
+        u = self.max_deformation[self.scored_tasks]
+        self.objective = float(u.max() if self.mode == "shared" else u.mean())
+        self.trace = trace
+        self.reward_bell = None
+
+
+#: row columns that depend on the regret reference (rewritten by :func:`rescore`)
+REFERENCE_COLUMNS = ("reference_objective_m", "reference_proven", "reference_source", "true_regret_m",
+                     "relative_regret", "samples_to_1pct", "samples_to_5pct", "success_1pct", "success_5pct")
+
+
+def rescore(run_dir, echo=print) -> int:
+    """Bring a run directory's shipped-reference snapshots (``DIR/reference/*.json``) up to the
+    shipped references as they are now, and recompute the reference-dependent columns of its rows;
+    returns the number of rows rewritten. Rows against an ``exact`` reference are left alone."""
+    import json
+    from pathlib import Path
+
+    import pandas as pd
+
+    from bench.cells import _shipped, metrics
+    from bench.store import Store, write_json_atomic
+
+    store = Store(run_dir)
+    rows = store.finished()
+    fresh = {}
+    for path in sorted((Path(run_dir) / "reference").glob("*.json")):
+        ref = json.loads(path.read_text())
+        if not str(ref.get("source", "")).startswith("catalog reference"):
+            continue
+        new = _shipped(ref["case"], ref["material"], int(ref["agents"]), int(ref["n_tasks"]))
+        if new is None:
+            continue
+        if new["per_task"] != ref["per_task"]:
+            ref.update(new)
+            write_json_atomic(path, ref)
+        fresh[_key_of(ref)] = ref
+    n = 0
+    for cid, row in rows.items():
+        ref = fresh.get(_key_of(row))
+        if ref is None or row.get("error") or not row.get("per_task_m"):
+            continue
+        tp = Path(run_dir) / "traces" / f"{cid}.parquet"
+        trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
+        m = metrics(_Scored(row, trace), ref)
+        if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in REFERENCE_COLUMNS):
+            row.update({k: m[k] for k in REFERENCE_COLUMNS})
+            write_json_atomic(store.row_path(cid), row)
+            n += 1
+    echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
+    return n
+
+
+def _key_of(rec: dict) -> tuple:
+    """(case, material, agents, n_tasks) of a row or a reference snapshot: what pairs them."""
+    return (rec["case"], rec["material"], int(rec["agents"]), int(rec["n_tasks"]))

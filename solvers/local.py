@@ -1,15 +1,15 @@
 """Local search in the plane: each robot tries the pads nearest its own, the neighbourhood widening
 when nothing nearby helps; a kick when even the widest does not.
 
-The deformation field is smooth in where a pad stands, so a good move is usually a short one. From
-a start layout, agents take turns (Gauss-Seidel, like ``greedy``): agent a evaluates its
+The deformation field is smooth in where a pad stands, so a good move is usually a short one. From a
+start layout, agents take turns (Gauss-Seidel, like ``greedy``): agent a evaluates its
 ``neighbours`` candidates nearest its current pad and ``explore`` random ones of its set (its own
-set only, in one batched call) and moves to the best if it lowers the fitness. When a whole round of agents brings no improvement, the
-neighbourhood doubles, up to the agent's whole set: at that width a round without a move is a
-person-by-person optimum (no single agent can improve), and the search *kicks*: ``kick_agents``
-agents, drawn at random, jump to random candidates of their sets, and the descent goes on from
-there (iterated local search; each kick starts from the best optimum found so far). Layouts
-already evaluated on the task are never paid for twice.
+set only, in one batched call) and moves to the best if it lowers the fitness. When a whole round of
+agents brings no improvement, the neighbourhood doubles, up to the agent's whole set: at that width
+a round without a move is a person-by-person optimum (no single agent can improve), and the search
+*kicks*: ``kick_agents`` agents, drawn at random, jump to random candidates of their sets, and the
+descent goes on from there (iterated local search; each kick starts from the best optimum found so
+far). Layouts already evaluated on the task are never paid for twice.
 
 Fitness: the soft max of |u| (power mean over the measurement points, ``soft_power``; why: see
 :mod:`solvers.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is

@@ -1,0 +1,115 @@
+"""Shipped regret references: format and checks, the portfolio, the harness's fallback, updates.
+
+The portfolio runs here on a tiny problem (fan_small with 2 agents: 42 x 42 layouts, 6 tasks) where
+the proven optimum is known by enumeration.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import cases.references as refs
+from bench.cells import compute_reference
+from bench.references import Portfolio, build, rescore, update
+from bench.store import Store, write_json_atomic
+from cases.errors import CaseError
+from cases.problem import Problem
+from cases.spec import load_case_spec
+from solvers import PlannerError, get
+
+TINY = Portfolio(samples_per_task=150, seeds=(0,), polish_samples=100, max_rounds=3)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return Problem(load_case_spec("fan_small", n_agents=2))
+
+
+@pytest.fixture(scope="module")
+def built(tiny):
+    return build("fan_small", agents=2, effort=TINY, problem=tiny, echo=lambda m: None)
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    monkeypatch.setattr(refs, "REFERENCE_DIR", tmp_path / "refs")
+    return tmp_path / "refs"
+
+
+def test_portfolio_reaches_the_proven_optimum(tiny, built):
+    opt = get("exact")().solve(tiny, None).max_deformation
+    got = np.array([t["max_deformation_m"] for t in built["tasks"]])
+    assert got == pytest.approx(opt, rel=1e-9)
+    for t, rec in enumerate(built["tasks"]):  # the recorded value is the layout's true max
+        u = tiny.oracle.evaluate(t, tiny.check_layouts([rec["layout"]]))[0, 3]
+        assert u == pytest.approx(rec["max_deformation_m"], rel=1e-12)
+    prov = built["provenance"][0]
+    assert prov["action"] == "build" and prov["samples"] > 0 and prov["portfolio"]["planners"]
+
+
+def test_write_load_and_checks(built, folder):
+    path = refs.write_reference(built)
+    text = path.read_text()
+    json.loads(text)  # strict JSON
+    assert "NaN" not in text
+    loaded = refs.load_reference("fan_small", built["material"], 2)
+    assert loaded["tasks"] == built["tasks"] and loaded["content_hash"] == refs.content_hash(built["tasks"])
+    damaged = json.loads(text)
+    damaged["tasks"][0]["max_deformation_m"] *= 0.5  # edited by hand: the hash no longer matches
+    path.write_text(json.dumps(damaged))
+    with pytest.raises(CaseError, match="content_hash"):
+        refs.load_reference("fan_small", built["material"], 2)
+    stale = dict(built, case_fingerprint="0" * 16)
+    refs.write_reference(stale)
+    assert refs.load_reference("fan_small", built["material"], 2) is None  # the case changed since
+
+
+def test_harness_uses_the_shipped_reference_where_exact_refuses(built, folder, monkeypatch):
+    refs.write_reference(built)
+
+    def refuse(self, problem, ev, rng, mode):
+        raise PlannerError("planner 'exact': too large")
+
+    monkeypatch.setattr(get("exact"), "plan", refuse)
+    ref = compute_reference("fan_small", None, 2, None, ("per-task",))
+    assert ref["error"] == ""
+    assert ref["source"].startswith("catalog reference fan_small__")
+    assert ref["per_task"] == [t["max_deformation_m"] for t in built["tasks"]]
+    assert ref["proven"] is False  # best-known until proven
+    monkeypatch.setattr(refs, "REFERENCE_DIR", folder / "empty")
+    ref = compute_reference("fan_small", None, 2, None, ("per-task",))
+    assert "no shipped reference" in ref["error"]
+
+
+def test_update_merges_only_verified_improvements_and_rescores(tiny, built, folder, tmp_path):
+    worse = json.loads(json.dumps(built))
+    bad = [int(a[-1]) for a in tiny.action_sets]
+    worse["tasks"][1].update(layout=bad, max_deformation_m=float(tiny.oracle.evaluate(1, [bad])[0, 3]))
+    refs.write_reference(worse)
+    run = tmp_path / "run"
+    store = Store(run)
+    snapshot = {"key": "k", "case": "fan_small", "material": built["material"], "agents": 2, "n_tasks": 6,
+                "per_task": [t["max_deformation_m"] for t in worse["tasks"]], "proven": False,
+                "source": "catalog reference fan_small__x.json", "shared": None}
+    write_json_atomic(run / "reference" / "k.json", snapshot)
+    good = [t["layout"] for t in built["tasks"]]
+    true = [t["max_deformation_m"] for t in built["tasks"]]
+    honest = {"cell": "honest", "planner": "p", "case": "fan_small", "material": built["material"],
+              "agents": 2, "n_tasks": 6, "mode": "per-task", "error": "", "layouts": json.dumps(good),
+              "per_task_m": json.dumps(true), "relative_regret": np.mean(true) / np.mean(snapshot["per_task"]) - 1}
+    liar = dict(honest, cell="liar", layouts=json.dumps([bad] * 6), per_task_m=json.dumps([1e-9] * 6))
+    for row in (honest, liar):
+        write_json_atomic(store.row_path(row["cell"]), row)
+    changed = update(run, echo=lambda m: None)
+    assert list(changed.values()) == [1]
+    now = refs.load_reference("fan_small", built["material"], 2)
+    assert now["tasks"][1]["layout"] == good[1] and now["tasks"][0] == built["tasks"][0]
+    assert now["tasks"][2:] == built["tasks"][2:]
+    assert now["provenance"][-1]["action"] == "update"
+    rows = store.finished()
+    assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
+    assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
+    assert rescore(run, echo=lambda m: None) == 0  # idempotent
