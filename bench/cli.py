@@ -201,13 +201,15 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_jso
 @click.option("--cell-timeout", type=click.FloatRange(min=0, min_open=True),
               help="Stop a cell after this many seconds; it becomes a row with an error.")
 @click.option("--retry-failed", is_flag=True, help="Rerun cells whose row carries an error.")
-def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed) -> None:
+@click.option("--only", help="Run only these planners or entry labels now (comma-separated); "
+              "a later run without --only completes the matrix.")
+def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
     """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
     from bench.runner import run_matrix
 
     summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
                          cell_timeout=cell_timeout, retry_failed=retry_failed,
-                         progress=sys.stderr.isatty())
+                         progress=sys.stderr.isatty(), only=tuple(x.strip() for x in (only or "").split(",") if x))
     click.echo(f"{summary['cells']} cells: {summary['run']} run ({summary['failed']} failed), "
                f"{summary['skipped']} already done; results in {out}")
 

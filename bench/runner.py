@@ -35,8 +35,11 @@ def make_executor(kind: str, workers: int | None, timeout: float | None, address
 
 def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local", workers: int | None = None,
                address: str | None = None, cell_timeout: float | None = None, retry_failed: bool = False,
-               progress: bool = True) -> dict:
-    """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped and failed."""
+               progress: bool = True, only: tuple[str, ...] = ()) -> dict:
+    """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped and failed.
+
+    ``only``: run just the cells of these planner names or entry labels now (the rest stay to do: a
+    later run of the same matrix without ``only`` completes it)."""
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
     store = Store(out)
     saved = store.root / "matrix.toml"
@@ -45,8 +48,14 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         raise CaseError(str(out), "", "holds the results of a different matrix (its matrix.toml differs); "
                         "choose another --out")
     cells = matrix.cells()
+    known = {c.planner for c in cells} | {c.label for c in cells if c.label}
+    for name in only:
+        if name not in known:
+            raise CaseError("--only", name, f"no planner or label of the matrix (known: {', '.join(sorted(known))})")
     done = store.finished()
     todo = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
+    if only:
+        todo = [c for c in todo if c.planner in only or c.label in only]
     summary = {"cells": len(cells), "skipped": len(cells) - len(todo), "run": 0, "failed": 0}
     if not todo:
         return summary

@@ -20,7 +20,7 @@ from cases.problem import Problem
 from cases.spec import load_case_spec
 from solvers import PlannerError, get
 
-TINY = Portfolio(samples_per_task=150, seeds=(0,), polish_samples=100, max_rounds=3)
+TINY = Portfolio(samples_per_task=150, seeds=(0,), polish_samples=100, max_rounds=3, prove_limit=0)
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +48,18 @@ def test_portfolio_reaches_the_proven_optimum(tiny, built):
         assert u == pytest.approx(rec["max_deformation_m"], rel=1e-12)
     prov = built["provenance"][0]
     assert prov["action"] == "build" and prov["samples"] > 0 and prov["portfolio"]["planners"]
+    assert {t["status"] for t in built["tasks"]} == {"best-known"}  # no proof asked for
+
+
+def test_affordable_proof_labels_tasks_proven(tiny):
+    from dataclasses import replace
+
+    ref = build("fan_small", agents=2, effort=replace(TINY, max_rounds=0, prove_limit=1e9), problem=tiny,
+                echo=lambda m: None)
+    opt = get("exact")().solve(tiny, None).max_deformation
+    assert [t["status"] for t in ref["tasks"]] == ["proven"] * tiny.n_tasks
+    assert [t["lower_bound_m"] for t in ref["tasks"]] == pytest.approx(opt.tolist(), rel=1e-12)
+    assert ref["provenance"][0]["steps"][-1]["phase"] == "proof"
 
 
 def test_write_load_and_checks(built, folder):

@@ -1,0 +1,54 @@
+"""The committed runs against their references: no layout any planner found beats its reference.
+
+A reference that a planner beats is not a reference; when a run finds a better layout,
+``fixbench references update DIR`` must merge it (and rescore the run) before the run is committed.
+Also: every successful cell of the paper matrix has a finite relative regret against a labelled
+reference.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.matrix import task_subset
+from bench.report import load_references
+from bench.store import load_results
+from cases.references import load_reference
+
+ROOT = Path(__file__).resolve().parents[1] / "results"
+RUNS = ["reference", "paper"]
+
+
+def _rows(run: str):
+    root = ROOT / run
+    assert (root / "rows").is_dir(), f"results/{run} is not committed"
+    rows = load_results(root)
+    return root, rows[(rows["error"].fillna("") == "") & rows["per_task_m"].notna()]
+
+
+@pytest.mark.parametrize("run", RUNS)
+def test_no_committed_layout_beats_its_reference(run):
+    root, rows = _rows(run)
+    assert len(rows), f"results/{run} has no successful row with per-task deformations"
+    refs = load_references(root)
+    for _, row in rows.iterrows():
+        u = np.asarray(json.loads(row["per_task_m"]))
+        ref = refs[(row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))]
+        bound = np.asarray(ref["per_task"]) * (1 - 1e-9)
+        assert (u >= bound).all(), (run, row["cell"], row["planner"], np.flatnonzero(u < bound))
+        if str(row["reference_source"]).startswith("catalog reference"):  # and the shipped one, as it is now
+            shipped = load_reference(row["case"], row["material"], int(row["agents"]))
+            assert shipped is not None, (row["case"], row["material"])
+            ids = task_subset(shipped["n_tasks"], len(u))
+            now = np.array([shipped["tasks"][i]["max_deformation_m"] for i in ids]) * (1 - 1e-9)
+            assert (u >= now).all(), (run, row["cell"], row["planner"])
+
+
+def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
+    _, rows = _rows("paper")
+    assert np.isfinite(rows["relative_regret"].astype(float)).all()
+    assert rows["reference_source"].str.len().gt(0).all()
