@@ -163,10 +163,12 @@ def solvers(as_json: bool) -> None:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--mode", type=click.Choice(["per-task", "shared"]), default="per-task", show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a config field.")
+@click.option("--heldout-every", type=click.IntRange(min=2),
+              help="Held-out track: train on every K-th task only, act on the others with no samples.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="PNG of the anytime curves (best so far against samples).")
-def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_json, plot) -> None:
+def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldout_every, as_json, plot) -> None:
     """Plan fixture layouts for CASE with one planner and report what it reached."""
     from solvers.config import apply_sets
     from solvers.registry import get
@@ -176,7 +178,8 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_jso
     cls = get(planner_name)
     planner = cls(**apply_sets(cls.Config, sets, cls.name))
     problem = _problem(case, material, agents)
-    result = planner.solve(problem, budget, seed=seed, mode=mode)
+    train = None if heldout_every is None else list(range(0, problem.n_tasks, heldout_every))
+    result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
     if plot:
         from bench.plots import anytime_plot
 
@@ -186,7 +189,7 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, as_jso
         click.echo(json.dumps(summary, indent=1, default=str))
     else:
         for k in ("planner", "case", "material", "mode", "seed", "budget", "samples",
-                  "mean_max_deformation_m", "worst_max_deformation_m", "mean_reward"):
+                  "mean_max_deformation_m", "worst_max_deformation_m", "mean_reward", "objective_m"):
             v = summary[k]
             click.echo(f"{k:>24}: {v:.6g}" if isinstance(v, float) else f"{k:>24}: {v}")
 

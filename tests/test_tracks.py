@@ -1,0 +1,121 @@
+"""The two tracks of the comparison in matrices: the budget sweep and held-out tasks (tiny case).
+
+Matrix keys and their expansion, the refusals (one line naming the key), and a tiny run of both
+tracks end to end: budgets follow the samples per task on the tasks a planner may evaluate,
+held-out cells spend nothing on the held-out tasks and are scored on them, and the report draws
+the sweep and the held-out comparison.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from bench.matrix import load_matrix
+from bench.runner import run_matrix
+from bench.store import load_results
+
+TRACKS = """
+name = "tracks"
+cases = ["fan_small"]
+seeds = [0, 1]
+samples_per_task = [2, 6, 20]
+agents = 2
+tasks = 6
+mode = ["per-task", "held-out"]
+heldout_every = 3
+
+[[planners]]
+name = "random"
+[[planners]]
+name = "local"
+label = "local+transfer"
+config = { transfer = 2 }
+[[planners]]
+name = "iql"
+max_samples_per_task = 6
+config = { episodes = 100 }
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "m.toml"
+    path.write_text(text)
+    return path
+
+
+def test_expansion(tmp_path):
+    cells = load_matrix(write(tmp_path, TRACKS)).cells()
+    # 2 modes x (3 + 3 + 2 sweep points) x 2 seeds
+    assert len(cells) == 2 * 8 * 2
+    assert {c.samples_per_task for c in cells if c.planner == "iql"} == {2, 6}
+    held = [c for c in cells if c.mode == "held-out"]
+    assert all(c.heldout_every == 3 for c in held)
+    c = held[0]
+    assert c.train_tasks(6) == [0, 3] and c.budget_for(6) == c.samples_per_task * 2
+    per_task = [c for c in cells if c.mode == "per-task"][0]
+    assert per_task.train_tasks(6) is None and per_task.budget_for(6) == per_task.samples_per_task * 6
+    assert len({c.id for c in cells}) == len(cells)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 6, 20]\nbudget = 100"), ["not both"]),
+    (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 0]"), ["samples_per_task", "positive"]),
+    (("heldout_every = 3", ""), ["heldout_every", "held-out"]),
+    (("heldout_every = 3", "heldout_every = 1"), ["heldout_every"]),
+    (("[[planners]]\nname = \"random\"", "[[planners]]\nname = \"random\"\n[[planners]]\nname = \"random\""),
+     ["planners", "labels"]),
+])
+def test_bad_track_keys_are_one_line(tmp_path, capsys, edit, words):
+    text = TRACKS.replace(*edit)
+    assert text != TRACKS
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path, text)), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and all(w in err for w in words), err
+    assert not out.exists()
+
+
+def test_only_runs_a_subset_and_a_plain_rerun_completes(tmp_path, capsys):
+    m = write(tmp_path, TRACKS.replace("seeds = [0, 1]", "seeds = [0]").replace(
+        'mode = ["per-task", "held-out"]\nheldout_every = 3', 'mode = "per-task"'))
+    out = tmp_path / "out"
+    assert main(["run", str(m), "--out", str(out), "--only", "nonsense"]) == 2
+    assert "--only: nonsense" in capsys.readouterr().err
+    first = run_matrix(m, out, workers=1, progress=False, only=("local+transfer",))
+    assert first["run"] == 3
+    assert set(load_results(out)["planner"]) == {"local"}
+    second = run_matrix(m, out, workers=1, progress=False)
+    assert second["skipped"] == 3 and second["run"] == 3 + 2
+
+
+def test_tracks_end_to_end(tmp_path):
+    out = tmp_path / "out"
+    summary = run_matrix(write(tmp_path, TRACKS), out, workers=2, progress=False)
+    assert summary["failed"] == 0 and summary["run"] == 32
+    rows = load_results(out)
+    for _, r in rows.iterrows():
+        n_train = 2 if r["mode"] == "held-out" else 6
+        assert r["budget"] == r["samples_per_task"] * n_train
+        assert r["samples"] <= r["budget"]
+        u = np.asarray(json.loads(r["per_task_m"]))
+        assert len(u) == 6 and r["reference_source"] == "exact"
+        scored = [1, 2, 4, 5] if r["mode"] == "held-out" else list(range(6))
+        assert r["n_scored_tasks"] == len(scored)
+        assert r["objective_m"] == pytest.approx(u[scored].mean())
+        assert np.isfinite(r["relative_regret"]) and r["relative_regret"] >= -1e-9
+    held = rows[rows["mode"] == "held-out"]
+    for cid in held["cell"]:  # no sample on a held-out task
+        trace = pd_read(out / "traces" / f"{cid}.parquet")
+        assert set(trace["task"].astype(int)) <= {0, 3}
+    assert main(["report", str(out), "--no-fields"]) == 0
+
+
+def pd_read(path):
+    import pandas as pd
+
+    return pd.read_parquet(path)
