@@ -43,13 +43,15 @@ from cases.spec import resolve_case
 class Portfolio:
     """Effort of the reference portfolio (the defaults are the shipped references' effort)."""
 
-    planners: tuple[str, ...] = ("pso", "ga", "local", "greedy")
-    """Planners run over all tasks in order, with transfer, in the first phase."""
+    planners: tuple[str, ...] = ("pso", "local", "greedy")
+    """Planners run over all tasks in order, with transfer, in the first phase (``ga`` can be added;
+    it is left out by default: on the wing panel at 100 samples a task it ended at twice pso's
+    deformation, and pymoo's per-generation cost makes it the slowest of the four)."""
 
-    samples_per_task: int = 3000
+    samples_per_task: int = 2000
     """Samples a task of each planner run of the first phase."""
 
-    seeds: tuple[int, ...] = (0, 1)
+    seeds: tuple[int, ...] = (0,)
     """Seeds of the first phase (each planner runs once per seed)."""
 
     transfer: int = 3

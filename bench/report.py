@@ -13,6 +13,11 @@ materials, agents and task counts; resampled over seeds), COCO-style runtime-to-
 Dolan-More performance profiles. Cells whose row carries an error are counted in ``failed`` and left
 out of every statistic. The bootstrap generator has a fixed seed and PDFs carry no creation date, so
 the same run directory always gives the same report.
+
+The comparison fixbench exists for (planners at equal samples) comes from :mod:`bench.comparison`:
+the main table (``main``: regret per case, mean rank over problems), the budget sweep (``sweep``, table
+and figure), the held-out track (``heldout``) and rliable's probability of improvement
+(``improvement``); a section the run has no rows for is skipped with its reason.
 """
 
 from __future__ import annotations
@@ -30,21 +35,39 @@ import matplotlib.tri as mtri  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 from scipy.stats import trim_mean  # noqa: E402
 
+from bench.comparison import (  # noqa: E402
+    BOOT_SEED,
+    N_BOOT,
+    ci_text,
+    figure_legend,
+    fmt,
+    heldout_table,
+    improvement_table,
+    main_table,
+    panel_grid,
+    ref_key,
+    setting_text,
+    show_heldout,
+    show_improvement,
+    show_main,
+    show_sweep,
+    sweep_figure,
+    sweep_table,
+)
 from bench.store import load_curves, load_results, load_traces  # noqa: E402
 from cases.errors import CaseError  # noqa: E402
 
-BOOT_SEED = 20250101
-N_BOOT = 2000
 TARGETS = (0.01, 0.02, 0.05, 0.10, 0.20)
 #: settings that split the summary into separate groups when the run varies them
-SETTINGS = ("agents", "mode", "budget")
+SETTINGS = ("agents", "mode", "budget", "samples_per_task")
 #: columns of a problem instance (cells with the same values share a regret reference)
 PROBLEM = ("case", "material", "agents", "n_tasks", "mode")
 NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
            "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
-           "reference_objective_m")
+           "reference_objective_m", "samples_per_task", "heldout_every", "n_scored_tasks")
 LEARNER_CURVES = ("episode_return", "step_reward")
 
 
@@ -104,8 +127,9 @@ def _config_text(config) -> str:
 
 
 def load_rows(run_dir: Path) -> pd.DataFrame:
-    """Rows with numeric columns coerced, ``ok`` (no error) and ``label`` (planner, with its config
-    when the run has one planner under several configs)."""
+    """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
+    where the row has one, else the planner (with its config when the run has one planner under several
+    configs among the unlabelled rows; rows of older runs have no label column)."""
     rows = load_results(run_dir)
     for c in NUMERIC:
         rows[c] = pd.to_numeric(rows[c], errors="coerce")
@@ -113,9 +137,10 @@ def load_rows(run_dir: Path) -> pd.DataFrame:
     rows["ok"] = rows["error"] == ""
     rows["mode"] = rows["mode"].fillna("per-task")
     cfg = rows["config"].map(_config_text)
-    several = rows.assign(cfg=cfg).groupby("planner")["cfg"].nunique()
-    rows["label"] = [f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p
-                     for p, c in zip(rows["planner"], cfg)]
+    given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
+    several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
+    rows["label"] = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
+                     for g, p, c in zip(given, rows["planner"], cfg)]
     return rows
 
 
@@ -132,13 +157,6 @@ def load_references(run_dir: Path) -> dict[tuple, dict]:
         key = (ref.get("case"), ref.get("material"), int(ref.get("agents")), int(ref.get("n_tasks")))
         out[key] = ref
     return out
-
-
-def _ref_key(row) -> tuple | None:
-    try:
-        return (row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))
-    except (TypeError, ValueError):
-        return None
 
 
 def _problem_key(row) -> tuple:
@@ -182,20 +200,12 @@ class _Writer:
         self.md += [f"*{what} skipped: {why}.*", ""]
 
 
-def _fmt(v, digits: int = 3) -> str:
-    if v is None or not np.isfinite(v):
-        return "-"
-    return f"{v:.{digits}g}"
-
-
-def _ci(p, lo, hi) -> str:
-    if not np.isfinite(p):
-        return "-"
-    return f"{_fmt(p)} [{_fmt(lo)}, {_fmt(hi)}]"
-
-
 def _group_keys(rows: pd.DataFrame) -> list[str]:
-    return ["case"] + [k for k in SETTINGS if rows[k].nunique(dropna=True) > 1]
+    """``case`` and the SETTINGS the run varies; a sweep's budget follows from its samples a task."""
+    varied = [k for k in SETTINGS if rows[k].nunique(dropna=True) > 1]
+    if "samples_per_task" in varied:
+        varied = [k for k in varied if k != "budget"]
+    return ["case"] + varied
 
 
 def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
@@ -233,14 +243,13 @@ def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
 def _show_summary(df: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
     out = pd.DataFrame()
     for k in keys:
-        out[k] = df[k].map(lambda v: "unlimited" if isinstance(v, float) and math.isnan(v) else v) \
-            if k == "budget" else df[k]
+        out[k] = df[k].map(lambda v, k=k: setting_text(k, v))
     out["planner"] = df["planner"]
     out["cells"] = df["cells"]
     out["failed"] = df["failed"]
 
     def col(name):
-        return [_ci(p, lo, hi) for p, lo, hi in zip(df[name], df[f"{name}_lo"], df[f"{name}_hi"])]
+        return [ci_text(p, lo, hi) for p, lo, hi in zip(df[name], df[f"{name}_lo"], df[f"{name}_hi"])]
 
     out["max def. (um)"] = col("objective_um")
     out["IQM (um)"] = col("iqm_um")
@@ -289,7 +298,7 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
         key = (pk, int(task))
         if key in out:
             continue
-        ref = refs.get(_ref_key(row))
+        ref = refs.get(ref_key(row))
         val = None
         if ref is not None:
             if row["mode"] == "shared":
@@ -304,7 +313,8 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
 
 
 def gap_traces(ok: pd.DataFrame, traces: pd.DataFrame, opt: dict) -> list[dict]:
-    """One record per (cell, task): samples and relative gap best/opt - 1 (clipped at 0)."""
+    """One record per (cell, task): samples and relative gap best/opt - 1 (clipped at 0), with the
+    cell's planner, label and case."""
     info = ok.set_index("cell")
     out = []
     tr = traces[traces["cell"].isin(info.index)]
@@ -315,8 +325,8 @@ def gap_traces(ok: pd.DataFrame, traces: pd.DataFrame, opt: dict) -> list[dict]:
             continue
         g = g.sort_values("task_samples", kind="stable")
         gap = np.maximum(np.minimum.accumulate(g["best"].to_numpy()) / o - 1, 0.0)
-        out.append({"cell": cell, "task": int(task), "label": row["label"], "case": row["case"],
-                    "s": g["task_samples"].to_numpy(dtype=float), "gap": gap})
+        out.append({"cell": cell, "task": int(task), "planner": row["planner"], "label": row["label"],
+                    "case": row["case"], "s": g["task_samples"].to_numpy(dtype=float), "gap": gap})
     return out
 
 
@@ -342,8 +352,20 @@ def _palette(labels) -> dict:
     return {lab: cols[i % len(cols)] for i, lab in enumerate(labels)}
 
 
+#: the regret reference's planner: the anytime curves' 0 line, not a planner line of its own
+REFERENCE_PLANNER = "exact"
+
+
+def anytime_records(recs: list[dict], case: str) -> list[dict]:
+    """The gap traces of ``case`` that the anytime figure draws: every planner but the reference's
+    (``exact`` enumerates, so its trace would stretch the x axis over samples no planner spends)."""
+    return [r for r in recs if r["case"] == case and r["planner"] != REFERENCE_PLANNER]
+
+
 def anytime_figure(recs: list[dict], case: str, colors: dict):
-    sub = [r for r in recs if r["case"] == case]
+    """Best-so-far gap to the reference (%) against the samples spent on a task: median and
+    interquartile band per planner label, x axis up to the most samples a task any planner spent."""
+    sub = anytime_records(recs, case)
     grid = _grid(sub)
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for lab in sorted({r["label"] for r in sub}):
@@ -356,10 +378,11 @@ def anytime_figure(recs: list[dict], case: str, colors: dict):
         ax.step(grid[ok], med, where="post", color=colors[lab], label=f"{lab} ({len(vals)})")
         ax.fill_between(grid[ok], lo, hi, step="post", color=colors[lab], alpha=0.2, lw=0)
     ax.set_xscale("log")
+    ax.set_xlim(1, grid[-1])
     ax.set_yscale("symlog", linthresh=1.0)
     ax.set_ylim(bottom=0)
     ax.set_xlabel("samples spent on the task")
-    ax.set_ylabel("best so far above the optimum (%)")
+    ax.set_ylabel("best so far above the reference (%)\n(0 = the reference; symlog)", fontsize=8)
     ax.set_title(f"{case}: median over cells x tasks, band 25-75 %", fontsize=9)
     ax.legend(fontsize=7, title="planner (curves)", title_fontsize=7)
     fig.tight_layout()
@@ -367,8 +390,9 @@ def anytime_figure(recs: list[dict], case: str, colors: dict):
 
 
 def ecdf_figure(recs: list[dict], cases: list[str], colors: dict, targets=TARGETS):
-    fig, axes = plt.subplots(1, len(cases), figsize=(5.5 * len(cases), 4), squeeze=False)
-    for ax, case in zip(axes[0], cases):
+    """Runtime-to-target ECDFs, one panel a case (two a row), one legend for the figure."""
+    fig, axes = panel_grid(len(cases), row_height=3.6)
+    for ax, case in zip(axes, cases):
         sub = [r for r in recs if r["case"] == case]
         grid = _grid(sub)
         for lab in sorted({r["label"] for r in sub}):
@@ -378,11 +402,10 @@ def ecdf_figure(recs: list[dict], cases: list[str], colors: dict, targets=TARGET
         ax.set_xscale("log")
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel("samples spent on the task")
-        ax.set_ylabel("fraction of (cell, task, target) solved")
+        ax.set_ylabel("fraction of (cell, task, target) solved", fontsize=8)
         ax.set_title(f"{case}: targets {', '.join(f'{t:.0%}' for t in targets)} above the optimum",
                      fontsize=8)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
+    figure_legend(fig, axes, title="planner")
     return fig
 
 
@@ -420,23 +443,24 @@ def profile_figure(taus, rho, colors, n_problems):
 
 
 def violin_figure(ok: pd.DataFrame, colors):
+    """Horizontal violins of the difference from the reference (%), planners on the y axis, one panel
+    a case (two a row); the figure stays at most 2.5:1 so that it reads at page width."""
     cases = list(dict.fromkeys(ok["case"]))
-    fig, axes = plt.subplots(1, len(cases), figsize=(max(4.5, 1.1 * ok["label"].nunique() + 2) * len(cases),
-                                                     4.2), squeeze=False)
-    for ax, case in zip(axes[0], cases):
+    width = 5.0 * min(len(cases), 2)  # panel_grid's: 10 inches for two panels a row
+    nrow = math.ceil(len(cases) / 2)
+    fig, axes = panel_grid(len(cases), row_height=max(0.35 * ok["label"].nunique() + 1.3, width / 2.5 / nrow))
+    for ax, case in zip(axes, cases):
         d = ok[ok["case"] == case].assign(diff=lambda x: x["relative_regret"] * 100)
         order = sorted(d["label"].unique())
-        sns.violinplot(data=d, x="label", y="diff", hue="label", order=order, hue_order=order,
+        sns.violinplot(data=d, x="diff", y="label", hue="label", order=order, hue_order=order, orient="h",
                        palette=colors, cut=0, inner=None, ax=ax, legend=False, density_norm="width")
         rng = np.random.default_rng(BOOT_SEED)  # deterministic jitter (seaborn's is not seeded)
         for i, lab in enumerate(order):
-            y = d.loc[d["label"] == lab, "diff"].to_numpy()
-            ax.scatter(i + rng.uniform(-0.1, 0.1, len(y)), y, color="black", s=6, zorder=3)
-        ax.set_xlabel("planner")
-        ax.set_ylabel("deformation above the optimum (%)")
+            x = d.loc[d["label"] == lab, "diff"].to_numpy()
+            ax.scatter(x, i + rng.uniform(-0.1, 0.1, len(x)), color="black", s=6, zorder=3)
+        ax.set_xlabel("difference from reference (%)")
+        ax.set_ylabel("planner")
         ax.set_title(f"{case}: one point per cell", fontsize=9)
-        ax.tick_params(axis="x", labelrotation=30)
-    fig.tight_layout()
     return fig
 
 
@@ -495,7 +519,7 @@ def figure4(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict
         for c in lc:
             row = info.loc[c]
             u, task = _curve(curves, c, "step_max_u"), _curve(curves, c, "step_task").astype(int)
-            ref = refs.get(_ref_key(row))
+            ref = refs.get(ref_key(row))
             eps = len(_curve(curves, c, "episode_return"))
             if ref is not None and len(u) and len(u) == len(task):
                 opt = np.asarray(ref["per_task"], dtype=float)[task]
@@ -543,13 +567,15 @@ def _problem_for_row(row):
 
 
 def field_figure(ok: pd.DataFrame, case: str, refs: dict):
-    """The part's |u| under each planner's best layout (and the optimum), one material and task."""
+    """The part's |u| under each planner's best layout (and the optimum), one material and task. Each
+    panel has its own colour scale and bar: one scale set by the worst layout would flatten the good
+    ones into one colour."""
     d = ok[(ok["case"] == case) & ok["layouts"].notna()]
     mat = sorted(d["material"].unique())[0]
     d = d[d["material"] == mat]
     first = d.iloc[0]
     problem = _problem_for_row(first)
-    ref = refs.get(_ref_key(first))
+    ref = refs.get(ref_key(first))
     task = int(np.argmax(ref["per_task"])) if ref is not None and first["mode"] != "shared" else 0
     panels = []
     if ref is not None and ref.get("layouts") and first["mode"] != "shared":
@@ -565,15 +591,14 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict):
     for _, lay in panels:
         vals = model.nodal(problem.solve_direct(task, [lay]))
         mags.append(np.sqrt(vals["ux"] ** 2 + vals["uy"] ** 2 + vals["w"] ** 2) * 1e6)
-    vmax = max(float(m.max()) for m in mags) or 1.0
     ncol = min(len(panels), 3 if len(panels) <= 6 else 4)
     nrow = math.ceil(len(panels) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol + 1.2, 3.6 * nrow + 0.4), squeeze=False,
+    x0, y0, x1, y1 = problem.spec.polygon.bounds
+    panel_height = 3.2 * min((y1 - y0) / (x1 - x0), 1.5) + 1.2  # the part's aspect, and room for labels
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, panel_height * nrow + 0.4), squeeze=False,
                              layout="constrained")
-    levels = np.linspace(0, vmax, 31)
-    tc = None
     for ax, (title, lay), mag in zip(axes.ravel(), panels, mags):
-        tc = ax.tricontourf(tri, mag, levels=levels, cmap="viridis", extend="max")
+        tc = ax.tricontourf(tri, mag, levels=np.linspace(0, float(mag.max()) or 1.0, 31), cmap="viridis")
         poly = problem.spec.polygon
         for ring in (poly.exterior, *poly.interiors):
             x, y = np.asarray(ring.coords).T * 1e3
@@ -582,16 +607,71 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict):
         ax.scatter(c[:, 0], c[:, 1], color="red", s=18, zorder=3)
         ax.set_aspect("equal")
         ax.set_title(f"{title}\nmax |u| {mag.max():.3g} um", fontsize=8)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set_xlabel("x (mm)", fontsize=8)
+        ax.set_ylabel("y (mm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        cbar = fig.colorbar(tc, cax=ax.inset_axes([1.03, 0.0, 0.04, 1.0]), ticks=MaxNLocator(5))
+        cbar.set_label("|u| (um)", fontsize=8)
+        cbar.ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
-    fig.colorbar(tc, ax=axes.ravel().tolist(), label="|u| (um)", shrink=0.8)
     fig.suptitle(f"{case}, {mat}, task {task}: fixtures in red", fontsize=10)
     return fig, mat, task
 
 
 # driver ---------------------------------------------------------------------------------------------
+
+def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
+    """The README's main table (``main``): regret per case and mean rank over problems."""
+    if not rows["ok"].any():
+        w.skip("Main table", "no successful cells")
+        return
+    table = main_table(rows)
+    w.table("main", table, show_main(table, list(dict.fromkeys(rows["case"]))),
+            "Main table: relative regret against the reference (%, mean over every successful cell of the "
+            f"planner on the case with a 95 % percentile-bootstrap CI, {N_BOOT} resamples, fixed seed) and "
+            "the mean rank over problems (case x material x seed x agents x tasks x mode x budget or samples "
+            "a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its own "
+            "budget competes at every budget); sorted by mean rank.")
+
+
+def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
+    """The budget sweep, held-out and probability-of-improvement tables (:mod:`bench.comparison`),
+    each skipped with its reason when the run lacks its rows. Returns the sweep table, whose figure
+    comes with the figures."""
+    sweep = sweep_table(rows)
+    if rows["samples_per_task"].isna().all():
+        w.skip("Budget sweep table", "the run has no budget sweep (samples_per_task)")
+    elif sweep.empty:
+        w.skip("Budget sweep table", "no successful per-task sweep cell has a regret reference")
+    else:
+        w.table("sweep", sweep, show_sweep(sweep),
+                "Budget sweep: relative regret against the reference (%) per case, planner and samples a "
+                "task (per-task mode; mean over cells with a 95 % percentile-bootstrap CI, the value itself "
+                "for one cell).")
+    held = heldout_table(rows, refs)
+    if not (rows["mode"] == "held-out").any():
+        w.skip("Held-out table", "the run has no held-out cells")
+    elif not (held["track"] == "held-out").any():
+        w.skip("Held-out table", "no successful held-out cell has a regret reference")
+    else:
+        w.table("heldout", held, show_heldout(held),
+                "Held-out track: relative regret (%) on the held-out tasks (those outside range(0, tasks, k)) "
+                "of planners that trained on tasks 0, k, 2k, ... and acted on the others with zero samples, "
+                "beside the per-task cells (which pay samples on every task) scored on the same held-out "
+                "tasks against the same reference; `samples a cell` is the mean spent in all.")
+    group = _group_keys(rows)[1:]
+    imp = improvement_table(rows, group)
+    if imp.empty:
+        w.skip("Probability of improvement", "no case has two planners with a relative regret")
+    else:
+        w.table("improvement", imp, show_improvement(imp, group),
+                "Probability of improvement (rliable): P(X < Y), the chance that a random cell of X has a "
+                "lower relative regret than a random cell of Y (ties count 1/2; Mann-Whitney U / (n m)), per "
+                f"{', '.join(['case', *group])}, with a 95 % percentile-bootstrap CI over "
+                "both planners' cells.")
+    return sweep
+
 
 def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool = True) -> dict:
     """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``).
@@ -626,8 +706,10 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
     # tables ------------------------------------------------------------------------------------
     w.md += ["## Tables", ""]
     if rows.empty:
+        w.skip("Main table", "the run directory has no rows")
         w.skip("Summary table", "the run directory has no rows")
     else:
+        _main_section(w, rows)
         summ = summary_table(rows)
         keys = _group_keys(rows)
         w.table("summary", summ, _show_summary(summ, keys),
@@ -639,11 +721,12 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
                 "within the case.")
     if refs:
         w.table("references", reference_table(refs), reference_table(refs).map(
-            lambda v: _fmt(v, 4) if isinstance(v, float) else v),
+            lambda v: fmt(v, 4) if isinstance(v, float) else v),
             "Regret references: the `exact` planner's per-task optima (and shared optimum), proven or "
             "best known.")
     else:
         w.skip("Reference table", "the run has no usable regret reference (reference/*.json)")
+    sweep = _comparison_sections(w, rows, refs)
     ratios = None
     if ok.empty:
         w.skip("Performance profile table", "no successful cells")
@@ -656,7 +739,7 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
                                  "within 1.1": [float((ratios[k] <= 1.1).mean()) for k in rho],
                                  "within 2": [float((ratios[k] <= 2).mean()) for k in rho],
                                  "failed or missing": [float((~np.isfinite(ratios[k])).mean()) for k in rho]})
-            w.table("profile", prof, prof.map(lambda v: _fmt(v) if isinstance(v, float) else v),
+            w.table("profile", prof, prof.map(lambda v: fmt(v) if isinstance(v, float) else v),
                     "Performance profile summary: fraction of problems (case x material x seed) on which "
                     "each planner is the best, or within a factor 1.1 / 2 of the best planner's max "
                     "deformation.")
@@ -668,6 +751,10 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
 
     # figures -----------------------------------------------------------------------------------
     w.md += ["## Figures", ""]
+    if len(sweep):
+        w.figure("sweep", sweep_figure(sweep, colors),
+                 "Budget sweep: relative regret against the reference (%, log) against samples per task "
+                 "(log), one panel a case; mean over cells with its 95 % CI as a band.")
     traces = load_traces(run_dir)
     recs = []
     if ok.empty:
@@ -681,11 +768,12 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
                "reference is missing" if fallback else "")) if refs else "the best value seen in the run"
         if not recs:
             w.skip("Anytime curves and runtime ECDFs", "no trace could be matched to an optimum")
-        for case in [c for c in ok_cases if any(r["case"] == c for r in recs)]:
+        for case in [c for c in ok_cases if anytime_records(recs, c)]:
             w.figure(f"anytime_{slug(case)}", anytime_figure(recs, case, colors),
                      f"Anytime curves on {case}: best max deformation so far above the optimum ({src}) "
                      "against the samples spent on the task; median over cells x tasks with the "
-                     "interquartile band.")
+                     f"interquartile band. The reference is the 0 line; `{REFERENCE_PLANNER}` (which "
+                     "enumerates) is not drawn, so the x axis ends at the most samples a planner spent.")
         if recs:
             rc = [c for c in ok_cases if any(r["case"] == c for r in recs)]
             w.figure("ecdf", ecdf_figure(recs, rc, colors),
@@ -701,7 +789,7 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
         w.skip("Performance profile", "no problem has a successful cell")
     if ok["relative_regret"].notna().any():
         w.figure("violin", violin_figure(ok[ok["relative_regret"].notna()], colors),
-                 "Percentage difference of the max deformation from the optimum, per planner (one point "
+                 "Percentage difference of the max deformation from the reference, per planner (one point "
                  "per cell).")
     else:
         w.skip("Violin plot", "no successful cell has a regret reference")
@@ -729,7 +817,8 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
                 continue
             w.figure(f"field_{slug(case)}", fig,
                      f"Deformation |u| of {case} ({mat}, task {task}, the task with the largest optimum) "
-                     "under each planner's best layout over seeds, and the optimum's; one colour scale.")
+                     "under each planner's best layout over seeds, and the optimum's; each panel has its "
+                     "own colour scale.")
     if w.notes:
         w.md += ["## Skipped", ""] + [f"- {n}" for n in w.notes] + [""]
     path = out / "report.md"
