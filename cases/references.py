@@ -99,6 +99,7 @@ def write_reference(ref: dict, folder: Path | None = None) -> Path:
     try:
         with os.fdopen(fd, "w") as f:
             f.write(_dumps(ref))
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a shipped data file is readable by all
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
