@@ -243,9 +243,10 @@ def references() -> None:
 @click.option("--agents", type=int, help="Number of agents (default: the case's).")
 @click.option("--samples-per-task", type=click.IntRange(min=1), help="Effort of each portfolio planner a task.")
 @click.option("--rounds", type=click.IntRange(min=0), help="Most neighbour-exchange rounds.")
+@click.option("--planners", help="Comma-separated planners of the first phase (empty: exchange rounds only).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),
               help="Folder to write to (default: the catalog's references folder).")
-def references_build(case, material, agents, samples_per_task, rounds, out) -> None:
+def references_build(case, material, agents, samples_per_task, rounds, planners, out) -> None:
     """Run the reference portfolio on CASE and write (or improve) its shipped reference."""
     from dataclasses import replace
 
@@ -256,6 +257,8 @@ def references_build(case, material, agents, samples_per_task, rounds, out) -> N
         effort = replace(effort, samples_per_task=samples_per_task)
     if rounds is not None:
         effort = replace(effort, max_rounds=rounds)
+    if planners is not None:
+        effort = replace(effort, planners=tuple(x.strip() for x in planners.split(",") if x.strip()))
     path = build_and_write(case, material, agents, effort, echo=lambda m: click.echo(m, err=True), folder=out)
     click.echo(f"wrote {path}")
 
