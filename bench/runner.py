@@ -38,8 +38,10 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
                progress: bool = True, only: tuple[str, ...] = ()) -> dict:
     """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped and failed.
 
-    ``only``: run just the cells of these planner names or entry labels now (the rest stay to do: a
-    later run of the same matrix without ``only`` completes it)."""
+    ``only``: run just some cells now: planner names or entry labels, and ``key=value`` filters on
+    the cell's ``case``, ``material``, ``mode`` or ``seed`` (a cell runs if it matches one of the
+    names, when any is given, and one value of every key given). The rest stay to do: a later run of
+    the same matrix without ``only`` completes it."""
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
     store = Store(out)
     saved = store.root / "matrix.toml"
@@ -48,14 +50,10 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         raise CaseError(str(out), "", "holds the results of a different matrix (its matrix.toml differs); "
                         "choose another --out")
     cells = matrix.cells()
-    known = {c.planner for c in cells} | {c.label for c in cells if c.label}
-    for name in only:
-        if name not in known:
-            raise CaseError("--only", name, f"no planner or label of the matrix (known: {', '.join(sorted(known))})")
+    selected = _selection(cells, only)
     done = store.finished()
     todo = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
-    if only:
-        todo = [c for c in todo if c.planner in only or c.label in only]
+    todo = [c for c in todo if selected(c)]
     summary = {"cells": len(cells), "skipped": len(cells) - len(todo), "run": 0, "failed": 0}
     if not todo:
         return summary
@@ -109,6 +107,32 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         ex.close()
     bar.close()
     return summary
+
+
+ONLY_KEYS = ("case", "material", "mode", "seed")
+
+
+def _selection(cells, only: tuple[str, ...]):
+    """The predicate of ``--only`` (see :func:`run_matrix`); unknown names or keys are refused."""
+    known = {c.planner for c in cells} | {c.label for c in cells if c.label}
+    names, values = set(), {}
+    for item in only:
+        key, eq, value = item.partition("=")
+        if eq:
+            if key not in ONLY_KEYS:
+                raise CaseError("--only", item, f"filters on {', '.join(ONLY_KEYS)} only")
+            values.setdefault(key, set()).add(value)
+        elif item in known:
+            names.add(item)
+        else:
+            raise CaseError("--only", item, f"no planner or label of the matrix (known: {', '.join(sorted(known))})")
+
+    def selected(c) -> bool:
+        if names and c.planner not in names and c.label not in names:
+            return False
+        return all(str(getattr(c, k)) in v for k, v in values.items())
+
+    return selected
 
 
 def _frame(records: dict | None) -> pd.DataFrame | None:

@@ -89,8 +89,11 @@ def test_only_runs_a_subset_and_a_plain_rerun_completes(tmp_path, capsys):
     first = run_matrix(m, out, workers=1, progress=False, only=("local+transfer",))
     assert first["run"] == 3
     assert set(load_results(out)["planner"]) == {"local"}
-    second = run_matrix(m, out, workers=1, progress=False)
-    assert second["skipped"] == 3 and second["run"] == 3 + 2
+    assert main(["run", str(m), "--out", str(out), "--only", "budget=3"]) == 2
+    second = run_matrix(m, out, workers=1, progress=False, only=("random", "mode=per-task", "seed=0", "seed=7"))
+    assert second["run"] == 3 and set(load_results(out)["planner"]) == {"local", "random"}
+    third = run_matrix(m, out, workers=1, progress=False)
+    assert third["skipped"] == 6 and third["run"] == 2
 
 
 def test_tracks_end_to_end(tmp_path):
