@@ -12,8 +12,10 @@ The portfolio (:class:`Portfolio`), in this order:
    ``local``, ``greedy``) solves every task in order with ``samples_per_task`` samples a task and
    warm starts from the ``transfer`` nearest solved tasks, once per seed; the best layout of each
    task over all runs is kept.
-The first phase starts from the shipped reference when there is one (its layouts measured again),
-so a rebuild can only improve it. ``planners`` may be empty (exchange rounds only).
+The first phase starts from the shipped references of the case in every material (its own first;
+layouts measured again on this material: the best layout of a linear problem hardly depends on the
+material), so a rebuild can only improve a reference and a new material starts where the others
+are. ``planners`` may be empty (exchange rounds only).
 
 2. **Neighbour exchange.** Rounds over the tasks, forward then backward: each task tries the
    current best layouts of its ``exchange`` nearest tasks (by task features) and its own, and a
@@ -37,6 +39,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from cases.materials import MATERIALS
 from cases.problem import Problem, load_problem
 from cases.references import case_fingerprint, load_reference, write_reference
 from cases.spec import resolve_case
@@ -108,12 +111,17 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
             return True
         return False
 
-    shipped = load_reference(case, p.spec.material.name, p.n_agents) if problem is None else None
-    if shipped is not None and shipped["n_tasks"] == T:  # go on from what is known (measured again)
-        for k, rec in enumerate(shipped["tasks"]):
-            offer(k, np.array([rec["layout"]]), p.oracle.evaluate(k, np.array([rec["layout"]]))[:, 3])
+    own = p.spec.material.name
+    for mat in ([own] + sorted(set(MATERIALS) - {own})) if problem is None else []:
+        shipped = load_reference(case, mat, p.n_agents)  # go on from what is known, measured again here
+        if shipped is None or shipped["n_tasks"] != T:
+            continue
+        L = np.array([rec["layout"] for rec in shipped["tasks"]])
+        improved = sum(offer(k, L[k:k + 1], p.oracle.evaluate(k, L[k:k + 1])[:, 3]) for k in range(T))
         prog.samples += T
-        prog.log.append({"phase": "start", "from": "the shipped reference", "mean_m": float(best.mean())})
+        prog.log.append({"phase": "start", "from": f"the shipped reference of {mat}", "tasks_improved": improved,
+                         "mean_m": float(best.mean())})
+        echo(f"{p.name}/{own}: start from the {mat} reference: mean {1e6 * best.mean():.4g} um")
 
     for seed in effort.seeds:
         for name in effort.planners:
