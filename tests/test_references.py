@@ -125,3 +125,12 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent
+
+
+def test_check_small_counts_tasks_at_the_optimum():
+    from bench.references import check_small
+
+    rows = check_small(cases=("fan_small",), materials=("steel",), effort=TINY, echo=lambda r: None)
+    assert len(rows) == 1 and rows[0]["tasks"] == 6
+    assert 0 <= rows[0]["reached"] <= 6 and rows[0]["worst_gap_pct"] >= -1e-7
+    assert (rows[0]["reached"] == 6) == (rows[0]["worst_gap_pct"] <= 1e-7)
