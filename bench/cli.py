@@ -205,7 +205,8 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
               help="Stop a cell after this many seconds; it becomes a row with an error.")
 @click.option("--retry-failed", is_flag=True, help="Rerun cells whose row carries an error.")
 @click.option("--only", help="Run only some cells now: planners or entry labels, and case=, material=, "
-              "mode=, seed= filters (comma-separated); a later run without --only completes the matrix.")
+              "mode=, seed=, samples_per_task= filters (comma-separated); a later run without --only "
+              "completes the matrix.")
 def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
     """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
     from bench.runner import run_matrix

@@ -39,7 +39,8 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
     """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped and failed.
 
     ``only``: run just some cells now: planner names or entry labels, and ``key=value`` filters on
-    the cell's ``case``, ``material``, ``mode`` or ``seed`` (a cell runs if it matches one of the
+    the cell's ``case``, ``material``, ``mode``, ``seed`` or ``samples_per_task`` (a cell runs if it
+    matches one of the
     names, when any is given, and one value of every key given). The rest stay to do: a later run of
     the same matrix without ``only`` completes it."""
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
@@ -109,7 +110,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
     return summary
 
 
-ONLY_KEYS = ("case", "material", "mode", "seed")
+ONLY_KEYS = ("case", "material", "mode", "seed", "samples_per_task")
 
 
 def _selection(cells, only: tuple[str, ...]):
