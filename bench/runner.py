@@ -40,9 +40,8 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
 
     ``only``: run just some cells now: planner names or entry labels, and ``key=value`` filters on
     the cell's ``case``, ``material``, ``mode``, ``seed`` or ``samples_per_task`` (a cell runs if it
-    matches one of the
-    names, when any is given, and one value of every key given). The rest stay to do: a later run of
-    the same matrix without ``only`` completes it."""
+    matches one of the names, when any is given, and one value of every key given). The rest stay to
+    do: a later run of the same matrix without ``only`` completes it."""
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
     store = Store(out)
     saved = store.root / "matrix.toml"
