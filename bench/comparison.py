@@ -345,30 +345,43 @@ def problem_ranks(rows: pd.DataFrame) -> pd.DataFrame:
     return best
 
 
+def main_columns(rows: pd.DataFrame) -> list[tuple[str, str, str | None]]:
+    """The main table's regret columns: (name, case, mode); one per case, or per case and mode when
+    the run has several modes (per-task and held-out regrets are not the same measurement)."""
+    modes = list(dict.fromkeys(rows["mode"].fillna("per-task")))
+    cases = list(dict.fromkeys(rows["case"]))
+    if len(modes) == 1:
+        return [(case, case, None) for case in cases]
+    return [(f"{case} ({mode})", case, mode) for mode in modes for case in cases]
+
+
 def main_table(rows: pd.DataFrame) -> pd.DataFrame:
     """The README's main table: one line a planner label with the mean relative regret (%) on each
-    case (columns ``<case>``, ``<case>_lo``, ``<case>_hi``: 95 % CI over its successful cells, all modes
-    and budgets of the run) and the mean rank over problems (:func:`problem_ranks`), sorted by it."""
-    cases = list(dict.fromkeys(rows["case"]))
+    case, and mode when the run has several (columns ``<name>``, ``<name>_lo``, ``<name>_hi``: 95 % CI
+    over its successful cells, all budgets of the run) and the mean rank over problems
+    (:func:`problem_ranks`), sorted by it."""
     ranks = problem_ranks(rows).groupby("label")["rank"].agg(["mean", "size"])
     scored = _scored(rows)
     recs = []
     for label in sorted(rows["label"].unique()):
         rec = {"planner": label}
-        for case in cases:
-            p, lo, hi = mean_ci(scored.loc[(scored["label"] == label) & (scored["case"] == case), "regret_pct"])
-            rec.update({case: p, f"{case}_lo": lo, f"{case}_hi": hi})
+        for name, case, mode in main_columns(rows):
+            pick = (scored["label"] == label) & (scored["case"] == case)
+            if mode is not None:
+                pick &= scored["mode"].fillna("per-task") == mode
+            p, lo, hi = mean_ci(scored.loc[pick, "regret_pct"])
+            rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi})
         rec.update(mean_rank=float(ranks.loc[label, "mean"]), problems=int(ranks.loc[label, "size"]))
         recs.append(rec)
     df = pd.DataFrame(recs)
     return df.sort_values(["mean_rank", "planner"], kind="stable").reset_index(drop=True)
 
 
-def show_main(table: pd.DataFrame, cases: Sequence[str]) -> pd.DataFrame:
-    """The main table formatted like README: ``mean [lo, hi]`` per case, then the mean rank."""
+def show_main(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
+    """The main table formatted like README: ``mean [lo, hi]`` per column, then the mean rank."""
     out = pd.DataFrame({"planner": table["planner"]})
-    for case in cases:
-        out[case] = _ci_column(table, case)
+    for name in columns:
+        out[name] = _ci_column(table, name)
     out["mean rank"] = table["mean_rank"].map(lambda v: fmt(v, 3))
     out["problems"] = table["problems"]
     return out

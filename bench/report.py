@@ -46,6 +46,7 @@ from bench.comparison import (  # noqa: E402
     fmt,
     heldout_table,
     improvement_table,
+    main_columns,
     main_table,
     panel_grid,
     ref_key,
@@ -631,9 +632,10 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
         w.skip("Main table", "no successful cells")
         return
     table = main_table(rows)
-    w.table("main", table, show_main(table, list(dict.fromkeys(rows["case"]))),
+    w.table("main", table, show_main(table, [name for name, _, _ in main_columns(rows)]),
             "Main table: relative regret against the reference (%, mean over every successful cell of the "
-            f"planner on the case with a 95 % percentile-bootstrap CI, {N_BOOT} resamples, fixed seed) and "
+            "planner on the case (and mode, when the run has several; held-out cells are scored on the "
+            f"held-out tasks) with a 95 % percentile-bootstrap CI, {N_BOOT} resamples, fixed seed) and "
             "the mean rank over problems (case x material x seed x agents x tasks x mode x budget or samples "
             "a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its own "
             "budget competes at every budget); sorted by mean rank.")

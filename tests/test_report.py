@@ -411,7 +411,9 @@ def test_main_table_ranks(swept, tmp_path):
     run, res = swept
     main_ = pd.read_csv(res["tables"]["main"])
     assert "mean_rank" in main_ and main_["mean_rank"].is_monotonic_increasing
-    assert {"plate_a", "plate_a_lo", "plate_a_hi", "plate_b"} <= set(main_.columns)
+    # the fake sweep has per-task and held-out cells: one column per case and mode
+    assert {"plate_a (per-task)", "plate_a (per-task)_lo", "plate_a (per-task)_hi", "plate_b (held-out)"} \
+        <= set(main_.columns)
     m = main_.set_index("planner")
     # exact (own budget) competes at each of the 3 sweep levels: 2 cases x 3 seeds x 3 levels
     assert m.loc["exact", "problems"] == 18 and main_["planner"].iloc[0] == "exact"
