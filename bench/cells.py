@@ -74,7 +74,7 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
         try:
             res = exact.solve(p, None, seed=0, mode="per-task")
         except PlannerError as refused:
-            shipped = _shipped(case, p.spec.material.name, p.n_agents, tasks)
+            shipped = shipped_reference(case, p.spec.material.name, p.n_agents, tasks)
             if shipped is None:
                 raise PlannerError(f"{refused}; and no shipped reference for {p.name}/{p.spec.material.name}/"
                                    f"{p.n_agents} agents (fixbench references build)") from None
@@ -93,7 +93,7 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
     return ref
 
 
-def _shipped(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
+def shipped_reference(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
     """The shipped reference of a catalog case for ``tasks`` of its tasks (all: None), or None."""
     from cases.references import load_reference
     from cases.spec import case_names

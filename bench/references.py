@@ -303,7 +303,7 @@ def rescore(run_dir, echo=print) -> int:
 
     import pandas as pd
 
-    from bench.cells import _shipped, metrics
+    from bench.cells import metrics, shipped_reference
     from bench.store import Store, write_json_atomic
 
     store = Store(run_dir)
@@ -313,7 +313,7 @@ def rescore(run_dir, echo=print) -> int:
         ref = json.loads(path.read_text())
         if not str(ref.get("source", "")).startswith("catalog reference"):
             continue
-        new = _shipped(ref["case"], ref["material"], int(ref["agents"]), int(ref["n_tasks"]))
+        new = shipped_reference(ref["case"], ref["material"], int(ref["agents"]), int(ref["n_tasks"]))
         if new is None:
             continue
         if new["per_task"] != ref["per_task"]:
