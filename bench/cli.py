@@ -215,7 +215,9 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
                          cell_timeout=cell_timeout, retry_failed=retry_failed,
                          progress=sys.stderr.isatty(), only=tuple(x.strip() for x in (only or "").split(",") if x))
     click.echo(f"{summary['cells']} cells: {summary['run']} run ({summary['failed']} failed), "
-               f"{summary['skipped']} already done; results in {out}")
+               f"{summary['skipped']} already done"
+               + (f", {summary['deferred']} left for a run without --only" if "deferred" in summary else "")
+               + f"; results in {out}")
 
 
 @cli.command()

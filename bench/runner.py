@@ -36,7 +36,8 @@ def make_executor(kind: str, workers: int | None, timeout: float | None, address
 def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local", workers: int | None = None,
                address: str | None = None, cell_timeout: float | None = None, retry_failed: bool = False,
                progress: bool = True, only: tuple[str, ...] = ()) -> dict:
-    """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped and failed.
+    """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped (done before),
+    failed and, with ``only``, deferred (left for a later run).
 
     ``only``: run just some cells now: planner names or entry labels, and ``key=value`` filters on
     the cell's ``case``, ``material``, ``mode``, ``seed`` or ``samples_per_task`` (a cell runs if it
@@ -52,9 +53,11 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
     cells = matrix.cells()
     selected = _selection(cells, only)
     done = store.finished()
-    todo = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
-    todo = [c for c in todo if selected(c)]
-    summary = {"cells": len(cells), "skipped": len(cells) - len(todo), "run": 0, "failed": 0}
+    pending = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
+    todo = [c for c in pending if selected(c)]
+    summary = {"cells": len(cells), "skipped": len(cells) - len(pending), "run": 0, "failed": 0}
+    if only:
+        summary["deferred"] = len(pending) - len(todo)  # left for a later run (not selected by ``only``)
     if not todo:
         return summary
     store.root.mkdir(parents=True, exist_ok=True)

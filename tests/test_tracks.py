@@ -92,8 +92,9 @@ def test_only_runs_a_subset_and_a_plain_rerun_completes(tmp_path, capsys):
     assert main(["run", str(m), "--out", str(out), "--only", "budget=3"]) == 2
     second = run_matrix(m, out, workers=1, progress=False, only=("random", "mode=per-task", "seed=0", "seed=7"))
     assert second["run"] == 3 and set(load_results(out)["planner"]) == {"local", "random"}
+    assert second["skipped"] == 3 and second["deferred"] == 2
     third = run_matrix(m, out, workers=1, progress=False)
-    assert third["skipped"] == 6 and third["run"] == 2
+    assert third["skipped"] == 6 and third["run"] == 2 and "deferred" not in third
 
 
 def test_tracks_end_to_end(tmp_path):
