@@ -89,7 +89,7 @@ def test_checking_a_matrix_of_builtin_names_imports_no_planner():
             "m = load_matrix('bench/matrices/default.toml')\n"
             "print(len(m.planners), sorted(k for k in ('torch', 'cvxpy', 'pymoo') if k in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.split() == ["9", "[]"]
+    assert out.split() == ["10", "[]"]
 
 
 def test_every_planner_is_documented():
