@@ -349,7 +349,8 @@ def runtime(rec: dict, target: float) -> float:
 # figures --------------------------------------------------------------------------------------------
 
 def _palette(labels) -> dict:
-    cols = sns.color_palette("tab10", max(len(labels), 1))
+    """A distinct colour per label: tab10 up to 10 labels, tab20 up to 20 (the paper run has 13)."""
+    cols = sns.color_palette("tab10" if len(labels) <= 10 else "tab20", max(len(labels), 1))
     return {lab: cols[i % len(cols)] for i, lab in enumerate(labels)}
 
 
