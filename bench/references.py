@@ -95,7 +95,7 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
     from solvers.base import random_layouts
     from solvers.local import LocalConfig, local_search
     from solvers.registry import get
-    from solvers.transfer import nearest_tasks
+    from solvers.transfer import nearest_tasks, scaled_features
 
     effort = effort or Portfolio()
     p = problem or load_problem(case, material=material, agents=agents)
@@ -139,7 +139,8 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
     cfg = LocalConfig(soft_power=effort.soft_power)
     rng = np.random.default_rng(effort.seeds[0])
     power = effort.soft_power or None
-    neighbours = [nearest_tasks(p, np.delete(np.arange(T), k), k, effort.exchange) for k in range(T)]
+    feats = scaled_features(p)
+    neighbours = [nearest_tasks(p, np.delete(np.arange(T), k), k, effort.exchange, feats) for k in range(T)]
     layout[~np.isfinite(best)] = random_layouts(p, rng, int((~np.isfinite(best)).sum()))
     for rnd in range(effort.max_rounds):
         t, improved = time.perf_counter(), 0

@@ -30,13 +30,14 @@ def scaled_features(problem: Problem) -> np.ndarray:
     return f[:, keep] / spread[keep] if keep.any() else np.zeros((problem.n_tasks, 1))
 
 
-def nearest_tasks(problem: Problem, solved, task: int, k: int) -> np.ndarray:
+def nearest_tasks(problem: Problem, solved, task: int, k: int, features: np.ndarray | None = None) -> np.ndarray:
     """Up to ``k`` of the ``solved`` task indices nearest to ``task`` by features (nearest first;
-    ties by index, so the order is deterministic)."""
+    ties by index, so the order is deterministic). ``features``: :func:`scaled_features` of the
+    problem, when a caller asks for many tasks (computed here otherwise)."""
     solved = np.asarray(solved, dtype=np.int64)
     if k <= 0 or len(solved) == 0:
         return np.empty(0, dtype=np.int64)
-    f = scaled_features(problem)
+    f = scaled_features(problem) if features is None else features
     d = np.linalg.norm(f[solved] - f[task], axis=1)
     order = np.lexsort((solved, d))
     return solved[order[:k]]
@@ -63,10 +64,10 @@ def fill_held_out(problem: Problem, layouts: np.ndarray, solved) -> tuple[np.nda
     nearest solved task; returns (layouts, {task: source task}) for the rows filled."""
     out = np.array(layouts, dtype=np.int64, copy=True)
     solved = np.asarray(solved, dtype=np.int64)
-    filled = {}
+    filled, f = {}, scaled_features(problem)
     for t in np.setdiff1d(np.arange(problem.n_tasks), solved):
         if (out[t] < 0).any():
-            src = int(nearest_tasks(problem, solved, int(t), 1)[0])
+            src = int(nearest_tasks(problem, solved, int(t), 1, f)[0])
             out[t] = out[src]
             filled[int(t)] = src
     return out, filled
