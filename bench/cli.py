@@ -287,6 +287,43 @@ def references_rescore(run_dir) -> None:
     rescore(run_dir, echo=click.echo)
 
 
+@cli.group()
+def cache() -> None:
+    """The on-disk cache of oracle set-up data (compliance columns), shared by every process."""
+
+
+@cache.command("info")
+@click.option("--json", "as_json", is_flag=True, help="Print strict JSON.")
+def cache_info(as_json: bool) -> None:
+    """Where the cache is, its size limit, and every entry (newest use first)."""
+    import time
+
+    from cases import cache as oracle_cache
+
+    base, es = oracle_cache.root(), oracle_cache.entries()
+    if as_json:
+        click.echo(json.dumps({"root": str(base) if base else None, "max_bytes": oracle_cache.max_bytes(),
+                               "entries": es}, indent=1))
+        return
+    if base is None:
+        click.echo("cache: off (FIXBENCH_CACHE_DIR=off)")
+        return
+    total = sum(e["bytes"] for e in es)
+    click.echo(f"cache: {base}  {len(es)} entries, {total / 2**20:.0f} MB of "
+               f"{oracle_cache.max_bytes() / 2**30:.1f} GB (FIXBENCH_CACHE_MAX_GB)")
+    for e in es:
+        used = time.strftime("%Y-%m-%d %H:%M", time.localtime(e["last_used"]))
+        click.echo(f"  {e['key']}  {e['bytes'] / 2**20:8.0f} MB  used {used}  {e['description']}")
+
+
+@cache.command("clear")
+def cache_clear() -> None:
+    """Remove every entry (they are rebuilt when next needed)."""
+    from cases import cache as oracle_cache
+
+    click.echo(f"removed {oracle_cache.clear()} entries from {oracle_cache.root()}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:

@@ -134,12 +134,13 @@ def _save(fig, path: Path) -> Path:
 def prepare(problem: Problem) -> float:
     """Build the problem's oracle with every candidate's compliance columns; returns seconds."""
     t = time.perf_counter()
-    problem.oracle.ensure(np.arange(len(problem.candidates)))
+    problem.oracle.prepare()
     return time.perf_counter() - t
 
 
 def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None = None,
-          episodes: int = 100, seed: int = 0, threads: int = 0, figures: str | None = None) -> dict:
+          episodes: int = 100, seed: int = 0, threads: int = 0, figures: str | None = None,
+          device: str = "cpu") -> dict:
     """Run the reference protocol once; wall time and its split (oracle / selection / updates).
 
     With ``figures`` (a directory), the same run's Figure 4 panels and its training record
@@ -150,7 +151,7 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
     problem = load_problem(case, agents=agents)
     setup = prepare(problem)
     t = time.perf_counter()
-    res = get(planner)(episodes=episodes, threads=threads).solve(problem, None, seed=seed)
+    res = get(planner)(episodes=episodes, threads=threads, device=device).solve(problem, None, seed=seed)
     wall = time.perf_counter() - t
     i = res.info
     if figures:
@@ -160,9 +161,10 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
             "episodes": i["episodes_run"], "samples": res.samples, "oracle_setup_s": setup,
             "wall_s": wall, "plan_s": i["time_total_s"], "oracle_s": i["time_oracle_s"],
             "select_s": i["time_select_s"], "update_s": i["time_update_s"],
-            "greedy_s": i["time_greedy_s"], "br_sweeps_mean": i["br_sweeps_mean"],
+            "greedy_s": i["time_greedy_s"], "device": device, "br_sweeps_mean": i["br_sweeps_mean"],
             "br_converged_frac": i["br_converged_frac"], "torch_threads": i["torch_threads"],
             "mean_max_deformation_m": float(res.max_deformation.mean()),
+            "per_task_m": res.max_deformation.tolist(), "episode_return": i["episode_return"],
             "loadavg": os.getloadavg(), "cpus": os.cpu_count()}
 
 
@@ -270,6 +272,8 @@ def main(argv=None) -> None:
     s.add_argument("--agents", type=int)
     s.add_argument("--episodes", type=int, default=100)
     s.add_argument("--threads", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--device", default="cpu", help="cpu or cuda")
     s.add_argument("--json", action="store_true")
     s.add_argument("--figures", help="also write this run's Figure 4 panels into this directory")
     h = sub.add_parser("heldout")
@@ -297,10 +301,11 @@ def main(argv=None) -> None:
         for p in figure4(results, args.out):
             print(f"wrote {p}")
     elif args.cmd == "speed":
-        res = speed(args.case, args.planner, args.agents, args.episodes, threads=args.threads,
-                    figures=args.figures)
+        res = speed(args.case, args.planner, args.agents, args.episodes, seed=args.seed, threads=args.threads,
+                    figures=args.figures, device=args.device)
         print(json.dumps(res, indent=1) if args.json else
-              "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()))
+              "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()
+                        if not isinstance(v, list)))
     else:
         rows = table(args.episodes, args.seed) if args.cmd == "table" else heldout(
             args.case, args.planner, args.fraction, args.episodes, args.seed)

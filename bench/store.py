@@ -54,7 +54,9 @@ ROW_SCHEMA = {
     "samples_to_5pct": "same, within 5 %",
     "success_1pct": "fraction of tasks whose final layout is within 1 % of the optimum",
     "success_5pct": "same, within 5 %",
-    "samples": "samples the planner spent", "wall_s": "wall time of the cell", "cpu_s": "CPU time of the cell",
+    "samples": "samples the planner spent",
+    "setup_s": "problem set-up before the planner ran: model, factorisation, compliance data (no samples)",
+    "wall_s": "wall time of the planner's run (set-up excluded)", "cpu_s": "CPU time of the planner's run",
     "layouts": "the planner's layout per task (JSON)",
     "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
 }

@@ -4,8 +4,10 @@ REFERENCE section 6. For each field, with the base supports' stiffness K factore
 
 - a fixture candidate j contributes constraint rows B_j (its pad's mean of each held component);
 - its *compliance columns* G_j = K^-1 B_j^T are one back-solve each and are computed lazily, the
-  first time a layout uses candidate j; from them we keep C_j = B G_j (the coupling of every
-  candidate row to j's rows) and H_j = P G_j (j's influence on the measurement points P);
+  first time a layout uses candidate j, or all at once by :meth:`Oracle.prepare` (set-up before a
+  run, stored in and later memory-mapped from the disk cache of :mod:`cases.cache`); from them we
+  keep C_j = B G_j (the coupling of every candidate row to j's rows) and H_j = P G_j (j's
+  influence on the measurement points P);
 - each task's unconstrained response u0 = K^-1 f is solved once, with d0 = B u0 and P u0.
 
 A layout S (rows R) then costs a |R| x |R| solve: lambda = C_RR^-1 d0_R and
@@ -27,6 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from cases import cache
 from cases.errors import NumericalError
 from cases.fem import COMPONENTS, PlateModel
 
@@ -34,20 +37,36 @@ from cases.fem import COMPONENTS, PlateModel
 #: refinement residuals are (DOFs x CHUNK) each. Measured on bus_panel_small (33,558 membrane DOFs):
 #: 512 -> +265 MB transient and 3.2 s for all columns; 32 -> +57 MB and 2.0 s.
 CHUNK = 32
+#: :meth:`Oracle.prepare` computes every column only while the complete data stays below this size
+#: (the wing panel's is 0.56 GB); beyond it, columns are computed as layouts first use them.
+PREPARE_MAX_BYTES = 2 * 2**30
 
 
 class FieldOracle:
-    """Green's-function data of one field (bending or membrane) of one model."""
+    """Green's-function data of one field (bending or membrane) of one model.
 
-    def __init__(self, model: PlateModel, field: str, candidates: np.ndarray):
-        fs = model.fields[field]
+    ``saved``: the complete data (C, H, d0, m0) of an earlier build, e.g. memory-mapped from the
+    disk cache (:mod:`cases.cache`); then nothing is factorised or solved here.
+    """
+
+    def __init__(self, model: PlateModel, field: str, candidates: np.ndarray,
+                 saved: dict[str, np.ndarray] | None = None):
         self.name = field
+        self.per = sum(c in model.spec.fixture_holds for c in COMPONENTS[field])
+        self.n_rows = self.per * len(candidates)
+        self.n_meas = model.measure_matrix(field).shape[0]
+        if saved is not None:
+            self.C, self.H, self.d0, self.m0 = (saved[k] for k in ("C", "H", "d0", "m0"))
+            if self.C.shape != (self.n_rows, self.n_rows) or self.H.shape != (self.n_rows, self.n_meas):
+                raise NumericalError(f"{field}: saved oracle data of the wrong shape")
+            self.done = np.ones(self.n_rows, dtype=bool)
+            self.lu = self.B = self.P = None  # complete: never needed
+            return
+        fs = model.fields[field]
         self.lu = fs.lu
-        B, self.per = model.fixture_rows(field, candidates)
+        B, _ = model.fixture_rows(field, candidates)
         self.B = B[:, fs.free].tocsr()
         self.P = model.measure_matrix(field)
-        self.n_rows = self.B.shape[0]
-        self.n_meas = self.P.shape[0]
         # Lazily filled: only rows of used candidates are written, so untouched pages cost nothing.
         self.C = np.zeros((self.n_rows, self.n_rows))
         self.H = np.zeros((self.n_rows, self.n_meas))
@@ -80,18 +99,60 @@ class FieldOracle:
                 progress(len(r))
         return len(todo)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"C": self.C, "H": self.H, "d0": self.d0, "m0": self.m0}
+
 
 class Oracle:
     """Batched, exact evaluation of fixture layouts for every task of a model.
 
     Not counted: planners reach it through :class:`cases.problem.Evaluator`, which charges samples.
+    ``cache_key``: where the complete data lives in the disk cache (:mod:`cases.cache`); opened from
+    there when present, written there by :meth:`prepare`.
     """
 
-    def __init__(self, model: PlateModel, candidates: np.ndarray):
+    def __init__(self, model: PlateModel, candidates: np.ndarray, cache_key: str | None = None):
         self.model = model
+        self.n_candidates = len(candidates)
         self.n_meas = len(model.measure_points)
-        self.fields = {f: FieldOracle(model, f, candidates) for f in model.active}
+        self.cache_key = cache_key
+        saved = cache.load(cache_key) if cache_key else None
+        if saved is not None and set(saved) != {f"{f}.{k}" for f in model.active for k in ("C", "H", "d0", "m0")}:
+            saved = None
+        self.from_cache = saved is not None
+        self.fields = {f: FieldOracle(model, f, candidates,
+                                      None if saved is None else {k: saved[f"{f}.{k}"] for k in ("C", "H", "d0", "m0")})
+                       for f in model.active}
         self.n_tasks = len(model.spec.tasks)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every candidate's compliance columns are computed."""
+        return all(fo.done.all() for fo in self.fields.values())
+
+    def full_bytes(self) -> int:
+        """Memory of the complete data (C, H, d0, m0 of every field)."""
+        return sum(8 * (fo.n_rows * (fo.n_rows + fo.n_meas + self.n_tasks) + self.n_tasks * fo.n_meas)
+                   for fo in self.fields.values())
+
+    def prepare(self, progress=None, max_bytes: float = PREPARE_MAX_BYTES) -> bool:
+        """Every candidate's compliance columns, from the disk cache or computed and stored there.
+
+        Set-up, not search: it costs no samples (planners still pay for what they read through the
+        :class:`~cases.problem.Evaluator`). Returns False, leaving the oracle lazy, when the complete
+        data would exceed ``max_bytes`` (the columns are then computed as layouts first use them).
+        """
+        if self.complete:
+            return True
+        if self.full_bytes() > max_bytes:
+            return False
+        self.ensure(np.arange(self.n_candidates), progress)
+        if self.cache_key:
+            spec = self.model.spec
+            arrays = {f"{f}.{k}": v for f, fo in self.fields.items() for k, v in fo.arrays().items()}
+            what = f"{spec.name} ({spec.material.name}, {self.n_candidates} candidates, {self.n_tasks} tasks)"
+            cache.store(self.cache_key, arrays, description=what)
+        return True
 
     def ensure(self, cand: np.ndarray, progress=None) -> None:
         for fo in self.fields.values():
@@ -110,7 +171,8 @@ class Oracle:
         without it (it costs a power per point).
         """
         layouts = np.ascontiguousarray(np.atleast_2d(layouts), dtype=np.int64)
-        self.ensure(layouts)
+        if not self.complete:
+            self.ensure(layouts)
         empty = (np.zeros((0, 0)), np.zeros((0, self.n_meas)), np.zeros(0),
                  np.zeros(self.n_meas), np.zeros((len(layouts), 0), dtype=np.int64))
         args = []

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cases import rewards
+from cases import cache, rewards
 from cases.errors import BudgetExhausted, CaseError, HeldOutTask
 from cases.fem import PlateModel
 from cases.oracle import Oracle
@@ -43,9 +43,9 @@ def set_cache_size(n: int) -> None:
     grouped by problem, keeps 1: a bus panel model and oracle hold ~115 MB)."""
     global CACHE_SIZE
     CACHE_SIZE = max(1, int(n))
-    for cache in (_MODELS, _ORACLES):
-        while len(cache) > CACHE_SIZE:
-            cache.popitem(last=False)
+    for kept in (_MODELS, _ORACLES):
+        while len(kept) > CACHE_SIZE:
+            kept.popitem(last=False)
 
 
 def _cached(cache: OrderedDict, key: str, build):
@@ -108,7 +108,16 @@ class Problem:
 
     @cached_property
     def oracle(self) -> Oracle:
-        return _cached(_ORACLES, self._key(), lambda: Oracle(self.model, self.candidates))
+        key = self._key()
+        return _cached(_ORACLES, key, lambda: Oracle(self.model, self.candidates, cache_key=cache.key(key)))
+
+    @cached_property
+    def _owner(self) -> np.ndarray:
+        """Agent owning each candidate (-1: none)."""
+        owner = np.full(len(self.candidates), -1, dtype=np.int64)
+        for a, allowed in enumerate(self.action_sets):
+            owner[allowed] = a
+        return owner
 
     def check_layouts(self, layouts) -> np.ndarray:
         """Layouts as an (L, n_agents) int array, each entry from its agent's own set."""
@@ -116,12 +125,15 @@ class Problem:
         if arr.ndim != 2 or arr.shape[1] != self.n_agents or not np.issubdtype(arr.dtype, np.integer):
             raise CaseError(self.spec.source, "layout",
                             f"must be {self.n_agents} integer candidate indices per layout")
-        for a, allowed in enumerate(self.action_sets):
-            ok = np.isin(arr[:, a], allowed)
-            if not ok.all():
-                raise CaseError(self.spec.source, "layout", f"candidate {int(arr[~ok, a][0])} is not "
-                                f"in agent {a}'s set ({allowed[0]}..{allowed[-1]})")
-        return arr.astype(np.int64)
+        arr = arr.astype(np.int64)
+        inside = (arr >= 0) & (arr < len(self.candidates))
+        ok = inside & (self._owner[np.where(inside, arr, 0)] == np.arange(self.n_agents))
+        if not ok.all():
+            a = int(np.flatnonzero((~ok).any(axis=0))[0])
+            allowed = self.action_sets[a]
+            raise CaseError(self.spec.source, "layout", f"candidate {int(arr[~ok[:, a], a][0])} is not "
+                            f"in agent {a}'s set ({allowed[0]}..{allowed[-1]})")
+        return arr
 
     def check_task(self, task: int) -> int:
         if not 0 <= int(task) < self.n_tasks:

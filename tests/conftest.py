@@ -53,3 +53,19 @@ def plate_toml(tmp_path):
         return str(path)
 
     return make
+
+
+def pytest_configure(config):
+    """Tests never touch the user's oracle cache: each test process gets an empty one of its own
+    (subprocesses of CLI tests inherit it through the environment)."""
+    import os
+    import tempfile
+
+    os.environ["FIXBENCH_CACHE_DIR"] = tempfile.mkdtemp(prefix="fixbench-test-cache-")
+
+
+def pytest_unconfigure(config):
+    import os
+    import shutil
+
+    shutil.rmtree(os.environ.get("FIXBENCH_CACHE_DIR", ""), ignore_errors=True)
