@@ -44,10 +44,12 @@ task; in shared mode each layout is judged on every task, n_tasks samples) are s
 
 Sizes and limits. The QP has ``n_rows * n_tasks_in_qp + n_candidates`` variables; on the small
 cases (at most 300 rows) each solve takes well under a second. On the full cases the compliance
-of every candidate costs ``per * n`` samples (wing_panel: 3 x 3,333 = 9,999) and R is n_rows^2
-dense (0.8 GB for 10,000 rows): set ``max_candidates_per_agent`` (e.g. 60) to screen each agent's
-set to evenly spaced candidates in its set's order before anything is read (no sample spent on
-the screening, and the screened-out candidates are never chosen).
+of every candidate would cost ``per * n`` samples (wing_panel: 3 x 3,333 = 9,999) and the QP's
+dense rows x rows data would need more than 8 GB (measured: stopped after 13 minutes at 8.8 GB).
+So each agent's set is screened to evenly spaced candidates in its set's order before anything is
+read, as many as ``max_rows`` allows (wing_panel, 5 agents, 3 components: 80 a agent), or
+``max_candidates_per_agent`` if smaller (no sample spent on the screening; the screened-out
+candidates are never chosen; ``info["candidates_per_agent"]`` says what was kept).
 """
 
 from __future__ import annotations
@@ -89,6 +91,11 @@ class QPConfig(PlannerConfig):
     max_candidates_per_agent: int = 0
     """Screen each agent's set to this many evenly spaced candidates before reading (0 = all)."""
 
+    max_rows: int = 1200
+    """Most QP rows (candidates x held components, all fields): a larger problem is screened to
+    ``max_rows // (components x agents)`` candidates per agent (0 = no limit). The QP's data are
+    dense rows x rows; 1,200 rows keep the full wing panel under 1 GB and a few minutes a run."""
+
     eps: float = 1e-5
     """OSQP absolute and relative tolerance."""
 
@@ -106,7 +113,7 @@ class QPPlanner(Planner):
         cfg = self.config
         if not cfg.m_scales or min(cfg.m_scales) <= 0 or cfg.big_m <= 0:
             raise PlannerError(f"planner '{self.name}': big_m and m_scales must be positive")
-        sets = screened_sets(problem, cfg.max_candidates_per_agent)
+        sets = screened_sets(problem, self.screen_limit(problem))
         cand = np.concatenate(sets)
         order = np.argsort(cand)
         cand_sorted = cand[order]
@@ -120,6 +127,7 @@ class QPPlanner(Planner):
         groups = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
         qp = RelaxedQP(data, pos, groups, len(cand), cfg, 1 if mode == "per-task" else problem.n_tasks)
         info = {"compliance_samples": int(sum(d.per * len(cand) for d in data.values())),
+                "candidates_per_agent": [len(a) for a in sets],
                 "unconstrained_samples": per_call * len(tasks), "candidates_read": len(cand),
                 "qp_status": []}
         if mode == "shared":
@@ -133,6 +141,18 @@ class QPPlanner(Planner):
             budget = int(min(cfg.polish_samples, ev.remaining // (len(tasks) - i)))  # fair share
             layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t, budget)
         return layouts, info
+
+
+    def screen_limit(self, problem: Problem) -> int:
+        """Candidates per agent to read: the config's limit, tightened to fit ``max_rows``."""
+        cfg = self.config
+        limit = cfg.max_candidates_per_agent
+        per = sum(fo.per for fo in problem.oracle.fields.values())  # held components: structure, not data
+        sizes = [len(a) if limit <= 0 else min(limit, len(a)) for a in problem.action_sets]
+        if cfg.max_rows > 0 and per * sum(sizes) > cfg.max_rows:
+            fit = max(1, cfg.max_rows // (per * problem.n_agents))
+            limit = fit if limit <= 0 else min(limit, fit)
+        return limit
 
 
 @dataclass
