@@ -2,7 +2,7 @@
 
     python -m bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
     python -m bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
-                                 [--json] [--figures DIR]
+                                 [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
     python -m bench.marl table   [--episodes 100] [--seed 0] [--json]
     python -m bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2] [--episodes 100] [--json]
 
