@@ -22,6 +22,28 @@ def _problem(case: str, material: str | None, agents: int | None = None):
     return load_problem(case, material=material, agents=agents)
 
 
+def _strict(obj):
+    """``obj`` with every non-finite float as None, numpy scalars and arrays as plain values."""
+    if isinstance(obj, dict):
+        return {str(k): _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _strict(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if obj is None or isinstance(obj, (str, int, float, bool)):
+        return obj
+    return str(obj)
+
+
+def echo_json(obj) -> None:
+    """Print strict JSON (RFC 8259: no NaN or Infinity; missing numbers are null)."""
+    click.echo(json.dumps(_strict(obj), indent=1, allow_nan=False))
+
+
 def _parse_layout(text: str) -> list[int]:
     try:
         return [int(x) for x in text.split(",")]
@@ -53,7 +75,7 @@ def cases(as_json: bool) -> None:
                      "candidates": len(p.candidates), "agents": p.n_agents, "tasks": p.n_tasks,
                      "joint_size": p.joint_size})
     if as_json:
-        click.echo(json.dumps(rows, indent=1))
+        echo_json(rows)
     else:
         df = pd.DataFrame(rows)
         df["joint_size"] = df["joint_size"].map(lambda n: f"{n:.3g}")
@@ -98,7 +120,7 @@ def evaluate(case, task, layout, material, as_json, plot, vtk) -> None:
 
         write_vtk(problem, task, idx, vtk)
     if as_json:
-        click.echo(json.dumps(result, indent=1))
+        echo_json(result)
     else:
         for k, v in result.items():
             unit = " m" if k.startswith("max_") else ""
@@ -113,7 +135,7 @@ def validate(as_json: bool) -> None:
 
     checks = run()
     if as_json:
-        click.echo(json.dumps(checks, indent=1))
+        echo_json(checks)
     else:
         import pandas as pd
 
@@ -132,7 +154,7 @@ def perf(case: str, batch: int, as_json: bool) -> None:
 
     res = run_perf(case, batch=batch, progress=not as_json)
     if as_json:
-        click.echo(json.dumps(res, indent=1))
+        echo_json(res)
     else:
         for k, v in res.items():
             click.echo(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
@@ -147,7 +169,7 @@ def solvers(as_json: bool) -> None:
     rows = [{"planner": n, "description": c.description, "modes": list(c.modes),
              "module": c.__module__} for n, c in available().items()]
     if as_json:
-        click.echo(json.dumps(rows, indent=1))
+        echo_json(rows)
     else:
         for r in rows:
             click.echo(f"{r['planner']:>10}  {r['description']}")
@@ -186,7 +208,7 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
         anytime_plot(result, plot)
     summary = result.summary()
     if as_json:
-        click.echo(json.dumps(summary, indent=1, default=str))
+        echo_json(summary)
     else:
         for k in ("planner", "case", "material", "mode", "seed", "budget", "samples",
                   "mean_max_deformation_m", "worst_max_deformation_m", "mean_reward", "objective_m"):
@@ -213,10 +235,13 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
 
     summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
                          cell_timeout=cell_timeout, retry_failed=retry_failed,
-                         progress=sys.stderr.isatty(), only=tuple(x.strip() for x in (only or "").split(",") if x))
+                         progress=sys.stderr.isatty(), only=tuple(x.strip() for x in (only or "").split(",") if x),
+                         plain_every=60.0)
     click.echo(f"{summary['cells']} cells: {summary['run']} run ({summary['failed']} failed), "
                f"{summary['skipped']} already done"
                + (f", {summary['deferred']} left for a run without --only" if "deferred" in summary else "")
+               + (f", {summary['damaged_moved']} damaged rows moved to {out}/damaged and rerun"
+                  if "damaged_moved" in summary else "")
                + f"; results in {out}")
 
 
@@ -302,8 +327,7 @@ def cache_info(as_json: bool) -> None:
 
     base, es = oracle_cache.root(), oracle_cache.entries()
     if as_json:
-        click.echo(json.dumps({"root": str(base) if base else None, "max_bytes": oracle_cache.max_bytes(),
-                               "entries": es}, indent=1))
+        echo_json({"root": str(base) if base else None, "max_bytes": oracle_cache.max_bytes(), "entries": es})
         return
     if base is None:
         click.echo("cache: off (FIXBENCH_CACHE_DIR=off)")
@@ -341,6 +365,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except np.linalg.LinAlgError as exc:
         click.echo(f"fixbench: numerical error: {exc}", err=True)
+        return 2
+    except OSError as exc:  # permission, no space, read-only file system: one line, nothing half-written
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"fixbench: {where}{exc.strerror or exc}", err=True)
         return 2
     return 0
 

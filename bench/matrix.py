@@ -155,12 +155,15 @@ def load_matrix(path: str | Path) -> Matrix:
             raise r.error(key, f"unknown key (known: {', '.join(KEYS)})")
     name = r.text("name", path.stem)
     r.text("description", "")
-    cases = _list(r, "cases", str)
-    for c in cases:
+    cases = []
+    for c in _list(r, "cases", str):
+        # a case file is found beside the matrix (not in the current directory), checked here
+        where = str(path.parent / c) if c.endswith(".toml") and not Path(c).is_absolute() else c
         try:
-            resolve_case(c if not c.endswith(".toml") else str(path.parent / c))
+            resolve_case(where)
         except CaseError as exc:
             raise r.error("cases", f"'{c}': {exc.problem}") from None
+        cases.append(where)
     materials = _list(r, "materials", str, [None]) if "materials" in data else [None]
     for m in materials:
         if m is not None and m not in MATERIALS:
@@ -187,6 +190,16 @@ def load_matrix(path: str | Path) -> Matrix:
         if m not in MODES:
             raise r.error("mode", f"must be one of {', '.join(MODES)}, got '{m}'")
     tasks = r.integer("tasks", None, minimum=1)
+    if tasks is not None:
+        from cases.spec import load_case_spec
+
+        for c in cases:
+            try:
+                n = len(load_case_spec(c).tasks)
+            except CaseError as exc:
+                raise r.error("cases", f"'{c}': {exc}") from None
+            if tasks > n:
+                raise r.error("tasks", f"{tasks} tasks asked, but case '{c}' has only {n}")
     heldout_every = r.integer("heldout_every", None, minimum=2)
     if ("held-out" in modes) != (heldout_every is not None):
         raise r.error("heldout_every", "is needed by mode \"held-out\" (train on every k-th task) and only then")

@@ -692,6 +692,9 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
     out = Path(out) if out is not None else run_dir / "report"
     w = _Writer(out)
     rows = load_rows(run_dir)
+    if rows.attrs.get("damaged"):
+        w.notes.append(f"{rows.attrs['damaged']} damaged row files: not read (each named on stderr); "
+                       "`fixbench run` moves them aside and recomputes their cells")
     refs = load_references(run_dir)
     ok = rows[rows["ok"]].copy()
     name = run_dir.name

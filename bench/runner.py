@@ -9,7 +9,8 @@ with its error; the matrix goes on.
 from __future__ import annotations
 
 import json
-import shutil
+import sys
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -17,7 +18,7 @@ from tqdm import tqdm
 
 from bench.cells import base_row, reference_key
 from bench.matrix import load_matrix
-from bench.store import Store
+from bench.store import Store, write_text_atomic
 from cases.errors import CaseError
 
 
@@ -35,34 +36,50 @@ def make_executor(kind: str, workers: int | None, timeout: float | None, address
 
 def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local", workers: int | None = None,
                address: str | None = None, cell_timeout: float | None = None, retry_failed: bool = False,
-               progress: bool = True, only: tuple[str, ...] = ()) -> dict:
+               progress: bool = True, only: tuple[str, ...] = (), plain_every: float = 0.0) -> dict:
     """Run (or resume) a matrix into ``out``; returns counts of cells run, skipped (done before),
     failed and, with ``only``, deferred (left for a later run).
 
     ``only``: run just some cells now: planner names or entry labels, and ``key=value`` filters on
     the cell's ``case``, ``material``, ``mode``, ``seed`` or ``samples_per_task`` (a cell runs if it
     matches one of the names, when any is given, and one value of every key given). The rest stay to
-    do: a later run of the same matrix without ``only`` completes it."""
+    do: a later run of the same matrix without ``only`` completes it.
+
+    ``progress``: a progress bar (a terminal); else, with ``plain_every`` > 0, one plain line on
+    stderr at most every that many seconds (cells done, failed, elapsed, ETA: logs, CI, nohup)."""
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
     store = Store(out)
-    saved = store.root / "matrix.toml"
     text = Path(matrix_path).read_text(encoding="utf-8")
-    if saved.exists() and saved.read_text(encoding="utf-8") != text:
-        raise CaseError(str(out), "", "holds the results of a different matrix (its matrix.toml differs); "
-                        "choose another --out")
     cells = matrix.cells()
     selected = _selection(cells, only)
-    done = store.finished()
+    if not store.root.exists() and not any(selected(c) for c in cells):
+        return {"cells": len(cells), "skipped": 0, "run": 0, "failed": 0, "deferred": len(cells)}
+    with store.lock():
+        return _run_locked(matrix_path, text, store, cells, selected, executor, workers, address, cell_timeout,
+                           retry_failed, progress, only, plain_every)
+
+
+def _run_locked(matrix_path, text, store, cells, selected, executor, workers, address, cell_timeout,
+                retry_failed, progress, only, plain_every) -> dict:
+    saved = store.root / "matrix.toml"
+    if saved.exists() and saved.read_text(encoding="utf-8") != text:
+        if saved.stat().st_size == 0 and not any((store.root / "rows").glob("*.json")):
+            saved.unlink()  # an empty copy left by a failed first write (e.g. a full disk): start again
+        else:
+            raise CaseError(str(store.root), "", "holds the results of a different matrix (its matrix.toml "
+                            "differs); choose another --out")
+    done = store.finished(move_damaged=True)
     pending = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
     todo = [c for c in pending if selected(c)]
     summary = {"cells": len(cells), "skipped": len(cells) - len(pending), "run": 0, "failed": 0}
+    if store.damaged:
+        summary["damaged_moved"] = len(store.damaged)
     if only:
         summary["deferred"] = len(pending) - len(todo)  # left for a later run (not selected by ``only``)
     if not todo:
         return summary
-    store.root.mkdir(parents=True, exist_ok=True)
     if not saved.exists():
-        shutil.copyfile(matrix_path, saved)
+        write_text_atomic(saved, text)
 
     modes = tuple(sorted({c.mode for c in cells}))
     references: dict[str, dict] = {}
@@ -76,6 +93,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
             ref_jobs.append(("reference", (*key4, modes)))
     ex = make_executor(executor, workers, cell_timeout, address)
     bar = tqdm(total=len(ref_jobs) + len(todo), disable=not progress, unit="job", desc="references")
+    plain = _PlainProgress(len(todo), plain_every if not progress else 0.0)
 
     def on_reference(job, result, error):
         case, material, agents, tasks, _ = job[1]
@@ -99,6 +117,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         summary["failed"] += bool(row["error"])
         bar.set_postfix(failed=summary["failed"])
         bar.update()
+        plain.tick(summary["run"], summary["failed"])
 
     try:
         if ref_jobs:
@@ -110,6 +129,31 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         ex.close()
     bar.close()
     return summary
+
+
+class _PlainProgress:
+    """A progress line on stderr at most every ``every`` seconds (0: never)."""
+
+    def __init__(self, total: int, every: float):
+        self.total, self.every = total, every
+        self.start = self.last = time.monotonic()
+
+    def tick(self, done: int, failed: int) -> None:
+        now = time.monotonic()
+        if self.every <= 0 or now - self.last < self.every or done >= self.total:
+            return  # (the command prints its own summary at the end)
+        self.last = now
+        elapsed = now - self.start
+        eta = elapsed / done * (self.total - done) if done else float("nan")
+        print(f"fixbench run: {done}/{self.total} cells done, {failed} failed, {_hms(elapsed)} elapsed, "
+              f"ETA {_hms(eta)}", file=sys.stderr, flush=True)
+
+
+def _hms(s: float) -> str:
+    if s != s:
+        return "?"
+    s = int(s)
+    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
 ONLY_KEYS = ("case", "material", "mode", "seed", "samples_per_task")

@@ -10,16 +10,31 @@ Layout of a run directory::
 
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
+
+Integrity: a row carries its schema version, its cell id (equal to its file name) and ``row_sha1``,
+a SHA-1 of its own content. A row file that does not parse, is not a row, belongs to another cell,
+has another schema version or fails its checksum is *damaged*: :meth:`Store.finished` reports it in
+one line and (in a run) moves it to ``DIR/damaged/`` (never deletes it), so its cell is recomputed;
+``fixbench report`` skips and counts it. Rows written before checksums existed are checked by
+schema only. ``DIR/.lock`` is held (an OS file lock) by the one ``fixbench run`` writing there.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
 import json
+import math
 import os
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pandas as pd
+
+from cases.errors import CaseError
 
 SCHEMA_VERSION = 1
 
@@ -62,22 +77,74 @@ ROW_SCHEMA = {
 }
 
 
-def write_json_atomic(path: Path, data) -> None:
+#: what every row must hold, with its type (rows of any version since the first)
+REQUIRED = {"schema": int, "cell": str, "planner": str, "case": str, "mode": str, "error": str}
+CHECKSUM = "row_sha1"
+
+
+def _atomic(path: Path, suffix: str, write) -> None:
+    """``write(tmp_path)`` then rename onto ``path``; the temporary file never outlives a failure."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(data, f, default=str, indent=1)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=suffix)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _write_synced(tmp: str, text: str) -> None:
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+
+
+def write_json_atomic(path: Path, data) -> None:
+    _atomic(path, ".json.tmp", lambda tmp: _write_synced(tmp, json.dumps(data, default=str, indent=1)))
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    _atomic(path, ".tmp", lambda tmp: _write_synced(tmp, text))
 
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".parquet.tmp")
-    os.close(fd)
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    _atomic(path, ".parquet.tmp", lambda tmp: df.to_parquet(tmp, index=False))
+
+
+def row_checksum(row: dict) -> str:
+    """SHA-1 of a row's content without its checksum (keys sorted; NaN written as JSON's NaN)."""
+    body = {k: v for k, v in row.items() if k != CHECKSUM}
+    return hashlib.sha1(json.dumps(body, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def check_row(row, cell_id: str) -> str:
+    """Why a parsed row file is not a valid row of cell ``cell_id`` ('' if it is)."""
+    if not isinstance(row, dict):
+        return "not a JSON object"
+    for key, kind in REQUIRED.items():
+        if not isinstance(row.get(key), kind) or isinstance(row.get(key), bool):
+            return f"key '{key}' missing or not a {kind.__name__}"
+    if row["schema"] != SCHEMA_VERSION:
+        return f"schema {row['schema']}, this fixbench reads {SCHEMA_VERSION}"
+    if row["cell"] != cell_id:
+        return f"holds cell {row['cell']!r}, not {cell_id!r}"
+    if CHECKSUM in row and row[CHECKSUM] != row_checksum(row):
+        return "checksum does not match its content"
+    for key in ("objective_m", "mean_max_deformation_m", "samples"):
+        v = row.get(key)
+        if v is not None and not isinstance(v, (int, float)):
+            return f"key '{key}' is not a number"
+        if not row["error"] and isinstance(v, float) and (math.isnan(v) or v < 0):
+            return f"key '{key}' is {v} in a row without error"
+    return ""
+
+
+def warn(msg: str) -> None:
+    print(f"fixbench: {msg}", file=sys.stderr)
 
 
 class Store:
@@ -89,15 +156,57 @@ class Store:
     def row_path(self, cell_id: str) -> Path:
         return self.root / "rows" / f"{cell_id}.json"
 
-    def finished(self) -> dict[str, dict]:
-        """Rows already written, by cell id."""
-        out = {}
+    def finished(self, move_damaged: bool = False) -> dict[str, dict]:
+        """Valid rows already written, by cell id. Each damaged row file is reported in one line and,
+        with ``move_damaged``, moved to ``DIR/damaged/`` (its cell is then to do again);
+        ``self.damaged`` lists their paths."""
+        out, self.damaged = {}, []
         for p in sorted((self.root / "rows").glob("*.json")):
-            out[p.stem] = json.loads(p.read_text())
+            try:
+                row = json.loads(p.read_text(encoding="utf-8"))
+                why = check_row(row, p.stem)
+            except (ValueError, UnicodeDecodeError) as exc:
+                why = f"not JSON ({str(exc).splitlines()[0]})"
+            if not why:
+                out[p.stem] = row
+                continue
+            self.damaged.append(p)
+            if move_damaged:
+                dest = self.root / "damaged" / f"{p.name}.{time.strftime('%Y%m%dT%H%M%S')}"
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(p, dest)
+                warn(f"{p}: damaged ({why}); moved to {dest}, its cell will be recomputed")
+            else:
+                warn(f"{p}: damaged ({why}); skipped")
         return out
+
+    @contextlib.contextmanager
+    def lock(self):
+        """Hold ``DIR/.lock`` for one writer; a second one is refused with one line (a lock of a
+        process that died is released by the OS, so the next run takes it over)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        f = open(self.root / ".lock", "a+", encoding="utf-8")
+        try:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                f.seek(0)
+                holder = f.read().strip() or "another process"
+                raise CaseError(str(self.root), "", f"another fixbench run is writing here ({holder}); "
+                                "wait for it to finish or choose another --out") from None
+            f.seek(0)
+            f.truncate()
+            f.write(f"pid {os.getpid()}")
+            f.flush()
+            yield
+            f.truncate(0)  # released: no stale holder named
+        finally:
+            f.close()
 
     def write(self, row: dict, trace: pd.DataFrame | None, curves: pd.DataFrame | None) -> None:
         """Traces first, the row last: a row on disk means the cell is complete."""
+        row = {k: v for k, v in row.items() if k != CHECKSUM}
+        row[CHECKSUM] = row_checksum(row)
         cid = row["cell"]
         if trace is not None:
             write_parquet_atomic(self.root / "traces" / f"{cid}.parquet", trace)
@@ -110,17 +219,25 @@ class Store:
 
 
 def load_results(root: str | Path) -> pd.DataFrame:
-    """One row per finished cell as a DataFrame (columns: ROW_SCHEMA)."""
-    rows = list(Store(root).finished().values())
+    """One row per finished cell as a DataFrame (columns: ROW_SCHEMA); damaged rows are skipped
+    (each reported on stderr; ``df.attrs["damaged"]`` counts them)."""
+    store = Store(root)
+    rows = list(store.finished().values())
     df = pd.DataFrame(rows, columns=list(ROW_SCHEMA)) if rows else pd.DataFrame(columns=list(ROW_SCHEMA))
-    return df.sort_values(["case", "material", "planner", "seed"], kind="stable").reset_index(drop=True)
+    df = df.sort_values(["case", "material", "planner", "seed"], kind="stable").reset_index(drop=True)
+    df.attrs["damaged"] = len(store.damaged)
+    return df
 
 
 def _load_parquets(root: str | Path, folder: str) -> pd.DataFrame:
     """Every cell's Parquet file in ``DIR/folder`` as one frame with a ``cell`` column."""
     frames = []
     for p in sorted((Path(root) / folder).glob("*.parquet")):
-        df = pd.read_parquet(p)
+        try:
+            df = pd.read_parquet(p)
+        except Exception as exc:  # pyarrow raises several kinds on a damaged file
+            warn(f"{p}: damaged ({type(exc).__name__}); skipped")
+            continue
         df["cell"] = p.stem
         frames.append(df)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()

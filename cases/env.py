@@ -47,6 +47,7 @@ class FixtureEnv(ParallelEnv):
     """
 
     metadata = {"name": "fixbench_fixture_v0", "render_modes": [], "is_parallelizable": True}
+    render_mode = None  # nothing to render: `fixbench show` and `fixbench evaluate --plot` draw the part
 
     def __init__(self, problem: Problem, budget: int | None = None, reward: str = "gaussian",
                  shuffle: bool = False, task_ids=None, evaluator: Evaluator | None = None):
@@ -107,15 +108,31 @@ class FixtureEnv(ParallelEnv):
         return self._obs(), {a: {"task": self.task} for a in self.agents}
 
     def layout(self, actions: dict) -> np.ndarray:
-        """Global candidate indices of a joint answer (one action per agent)."""
-        try:
-            return np.array([[self.problem.action_sets[i][int(actions[a])]
-                              for i, a in enumerate(self.possible_agents)]], dtype=np.int64)
-        except KeyError as exc:
-            raise CaseError(self.problem.spec.source, "actions", f"no action for agent {exc}") from None
-        except IndexError:
-            raise CaseError(self.problem.spec.source, "actions", "an action is outside its agent's set "
-                            f"(sizes {[len(s) for s in self.problem.action_sets]})") from None
+        """Global candidate indices of a joint answer (one action per agent).
+
+        Every action must be an integer (Python or numpy, not a bool, float or string) in
+        ``0..n-1`` of its agent's own set; anything else is refused (one line, no sample spent).
+        """
+        src = self.problem.spec.source
+        if not isinstance(actions, dict):
+            raise CaseError(src, "actions", f"must be a dict {{agent: action}}, got {type(actions).__name__}")
+        out = []
+        for i, a in enumerate(self.possible_agents):
+            if a not in actions:
+                raise CaseError(src, "actions", f"no action for agent '{a}'")
+            act, n = actions[a], len(self.problem.action_sets[i])
+            if isinstance(act, np.ndarray) and act.ndim == 0:
+                act = act[()]
+            if isinstance(act, (bool, np.bool_)) or not isinstance(act, (int, np.integer)):
+                raise CaseError(src, f"actions['{a}']", f"must be an integer in 0..{n - 1}, got {act!r}")
+            if not 0 <= int(act) < n:
+                raise CaseError(src, f"actions['{a}']", f"{int(act)} is outside 0..{n - 1} (agent '{a}' "
+                                f"has {n} candidates)")
+            out.append(self.problem.action_sets[i][int(act)])
+        unknown = set(actions) - set(self.possible_agents)
+        if unknown:
+            raise CaseError(src, "actions", f"unknown agent(s) {sorted(map(str, unknown))}")
+        return np.array([out], dtype=np.int64)
 
     def step(self, actions: dict):
         if not self.agents:
@@ -123,7 +140,9 @@ class FixtureEnv(ParallelEnv):
         task, layout = self.task, self.layout(actions)
         d = self.ev.evaluate(task, layout)
         row = d.row(0)
-        info = {**row, "task": task, "layout": layout[0].tolist()}
+        # strict values: a number the step did not compute (soft_u) is None, not NaN (NaN != NaN)
+        info = {**{k: (v if np.isfinite(v) else None) for k, v in row.items()}, "task": task,
+                "layout": layout[0].tolist()}
         r = row[self.reward_key]
         self._pos += 1
         done = self._pos >= len(self._order)

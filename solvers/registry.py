@@ -33,10 +33,12 @@ def register(cls: type[Planner]) -> type[Planner]:
         raise PlannerError(f"planner class {cls.__qualname__} has no name")
     builtin = BUILTIN.get(cls.name)
     if builtin is not None and cls.__module__ != builtin:  # checked without importing the built-in
-        raise PlannerError(f"planner name '{cls.name}' is taken by the built-in planner in {builtin}")
+        raise PlannerError(f"planner name '{cls.name}' is taken by the built-in planner in {builtin}; "
+                           f"{cls.__module__}.{cls.__qualname__} must be renamed")
     other = _REGISTRY.get(cls.name)
     if other is not None and other is not cls:
-        raise PlannerError(f"planner name '{cls.name}' is taken by {other.__module__}.{other.__qualname__}")
+        raise PlannerError(f"planner name '{cls.name}' is taken by {other.__module__}.{other.__qualname__}; "
+                           f"{cls.__module__}.{cls.__qualname__} must be renamed")
     _REGISTRY[cls.name] = cls
     return cls
 
@@ -49,12 +51,20 @@ def _import(name: str) -> None:
     """Import the built-in module or the entry point that provides planner ``name``."""
     if name in _REGISTRY:
         return
+    ep = _entry_points().get(name)
     if name in BUILTIN:
+        if ep is not None and not ep.value.startswith(BUILTIN[name]):  # every command, not just `solvers`
+            raise PlannerError(f"plugin '{name}' ({ep.value}{_package(ep)}) takes the name of the built-in "
+                               f"planner in {BUILTIN[name]}; the plugin must be renamed")
         importlib.import_module(BUILTIN[name])
         return
-    ep = _entry_points().get(name)
     if ep is not None:
         _load_entry_point(ep)
+
+
+def _package(ep) -> str:
+    dist = getattr(ep, "dist", None)
+    return f", package {dist.name}" if dist is not None else ""
 
 
 def _load_entry_point(ep) -> None:

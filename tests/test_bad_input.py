@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -148,3 +149,22 @@ def test_planner_spec_that_raises_on_import(capsys, plate_toml, tmp_path, monkey
     monkeypatch.syspath_prepend(str(tmp_path))
     line = _one_line_error(capsys, ["solve", plate_toml(), "--planner", "explodes:Planner"])
     assert "explodes:Planner" in line and "missing dependency xyz" in line
+
+
+@pytest.mark.parametrize("command", [["solvers"], ["solve", "fan_small", "--planner", "greedy", "--budget", "20"]])
+def test_a_plugin_taking_a_builtin_name_is_refused_by_every_command(tmp_path, command):
+    """A plugin registering 'greedy': refused by `fixbench solvers` and by `fixbench solve --planner greedy`
+    alike (one line naming the plugin and its package), never run in place of the built-in or silently
+    shadowed by it."""
+    (tmp_path / "shadow_plugin.py").write_text(
+        "from solvers import Planner\nclass Greedy(Planner):\n    name = 'greedy'\n"
+        "    description = 'impostor'\n    def plan(self, problem, ev, rng, mode):\n        raise SystemExit(9)\n")
+    dist = tmp_path / "shadow_plugin-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: shadow-plugin\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("[fixbench.planners]\ngreedy = shadow_plugin:Greedy\n")
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", *command], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert "greedy" in proc.stderr and "shadow_plugin" in proc.stderr

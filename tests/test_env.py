@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+from pettingzoo.utils.conversions import parallel_to_aec
 
 from cases import make_env
 from cases.errors import BudgetExhausted, CaseError
@@ -18,6 +19,32 @@ def test_parallel_api(part):
     assert env.problem.spec.part == part and env.problem.n_tasks == 3
     parallel_api_test(env, num_cycles=20)
     assert env.samples > 0
+
+
+@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan"])
+def test_parallel_seed_and_performance(part):
+    """PettingZoo's own seed test (same seed, same observations, rewards and infos) and its
+    performance benchmark (on the AEC view of the env) on every part."""
+    from pettingzoo.test import performance_benchmark
+
+    parallel_seed_test(lambda: make_env(part, tasks=TASKS), num_cycles=20)
+    performance_benchmark(parallel_to_aec(make_env(part, tasks=TASKS)))
+
+
+@pytest.mark.parametrize("bad", [-1, 3, 2.7, "1", None, True, np.array([1, 2]), 1.0])
+def test_an_action_that_is_not_an_own_index_is_refused_and_costs_nothing(bad):
+    env = make_env("fan_small", tasks=TASKS)
+    env.reset(seed=0)
+    n = len(env.problem.action_sets[0])
+    actions = {a: 0 for a in env.possible_agents}
+    actions[env.possible_agents[0]] = n if isinstance(bad, int) and bad == 3 else bad
+    with pytest.raises(CaseError) as err:
+        env.step(actions)
+    assert "\n" not in str(err.value) and "actions" in str(err.value)
+    assert env.samples == 0
+    ok = {a: np.int64(0) for a in env.possible_agents}  # numpy integers are fine
+    env.step(ok)
+    assert env.samples == 1
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,208 @@
+"""Faults around a run: damaged rows, a second writer, unwritable directories, strict JSON output."""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bench.cli import main
+from bench.runner import run_matrix
+from bench.store import CHECKSUM, Store, load_results
+
+TINY = """
+name = "tiny"
+cases = ["fan_small"]
+materials = ["aluminium"]
+planners = ["random", "greedy"]
+seeds = [0, 1]
+budget = 60
+tasks = 2
+agents = 2
+"""
+
+
+@pytest.fixture
+def done_run(tmp_path):
+    """A finished tiny run: (matrix path, run dir, {cell id: row file bytes})."""
+    m = tmp_path / "m.toml"
+    m.write_text(TINY)
+    out = tmp_path / "run"
+    assert run_matrix(m, out, workers=1, progress=False)["run"] == 4
+    return m, out, {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")}
+
+
+def _damage(path: Path, kind: str) -> None:
+    row = json.loads(path.read_text())
+    if kind == "truncated":
+        path.write_bytes(path.read_bytes()[:40])
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "garbage":
+        path.write_bytes(b"\x00\xff not json at all")
+    elif kind == "empty object":
+        path.write_text("{}")
+    elif kind == "wrong value":  # valid JSON, plausible, but not what was measured
+        row["objective_m"] = row["objective_m"] / 2
+        path.write_text(json.dumps(row))
+    elif kind == "foreign cell":
+        row["cell"] = "0" * len(row["cell"])
+        row[CHECKSUM] = ""
+        path.write_text(json.dumps(row))
+
+
+@pytest.mark.parametrize("kind", ["truncated", "empty", "garbage", "empty object", "wrong value", "foreign cell"])
+def test_a_damaged_row_is_moved_aside_and_its_cell_recomputed(done_run, kind, capsys):
+    m, out, before = done_run
+    victim = sorted((out / "rows").glob("*.json"))[0]
+    _damage(victim, kind)
+    df = load_results(out)  # what `fixbench report` reads: skipped and counted, no crash
+    assert len(df) == 3 and df.attrs["damaged"] == 1
+    capsys.readouterr()
+    summary = run_matrix(m, out, workers=1, progress=False)
+    err = capsys.readouterr().err
+    assert summary["run"] == 1 and summary["damaged_moved"] == 1
+    assert err.count("\n") == 1 and str(victim) in err and "moved to" in err
+    moved = list((out / "damaged").iterdir())
+    assert len(moved) == 1  # kept, never deleted
+    after = {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")}
+    assert after.keys() == before.keys()
+    assert all(after[c] == b for c, b in before.items() if c != victim.stem)  # the others untouched
+    assert json.loads(after[victim.stem]) == json.loads(before[victim.stem]) | {"wall_s": json.loads(
+        after[victim.stem])["wall_s"], "cpu_s": json.loads(after[victim.stem])["cpu_s"],
+        "setup_s": json.loads(after[victim.stem])["setup_s"], CHECKSUM: json.loads(after[victim.stem])[CHECKSUM]}
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.integers(min_value=0, max_value=4000), junk=st.binary(max_size=64))
+def test_random_damage_never_reaches_the_user_as_a_traceback(done_run, cut, junk, capsys):
+    _, out, before = done_run
+    victim = sorted((out / "rows").glob("*.json"))[1]
+    data = before[victim.stem]
+    victim.write_bytes(data[:cut] + junk + data[cut + len(junk):])
+    df = load_results(out)
+    assert len(df) in (3, 4)  # either still a valid row (damage hit nothing) or skipped
+    victim.write_bytes(data)
+
+
+def test_a_second_writer_is_refused_in_one_line(done_run, capsys):
+    m, out, _ = done_run
+    with open(out / ".lock", "a+") as f:  # another process holds the run directory
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        f.write("pid 4242")
+        f.flush()
+        os.unlink(out / "rows" / sorted(os.listdir(out / "rows"))[0])  # so that there is work to do
+        assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "another fixbench run is writing here (pid 4242)" in err
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 0  # released: taken over
+
+
+def test_a_lock_of_a_dead_process_is_taken_over(done_run, capsys):
+    m, out, _ = done_run
+    code = f"import fcntl; f = open({str(out / '.lock')!r}, 'a+'); fcntl.flock(f, fcntl.LOCK_EX)"
+    subprocess.run([sys.executable, "-c", code], check=True)  # took the lock and died holding it
+    os.unlink(out / "rows" / sorted(os.listdir(out / "rows"))[0])
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 0
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores file permissions")
+def test_an_unwritable_out_is_one_line_and_exit_2(tmp_path, capsys):
+    m = tmp_path / "m.toml"
+    m.write_text(TINY)
+    locked = tmp_path / "ro"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        assert main(["run", str(m), "--out", str(locked / "run"), "--workers", "1"]) == 2
+    finally:
+        locked.chmod(0o700)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Permission denied" in err
+
+
+def test_a_failed_write_leaves_no_temporary_file(done_run, monkeypatch):
+    _, out, _ = done_run
+    store = Store(out)
+    import pandas as pd
+
+    def full_disk(self, *a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", full_disk)
+    row = json.loads(next((out / "rows").glob("*.json")).read_text())
+    with pytest.raises(OSError):
+        store.write(row, pd.DataFrame({"a": [1]}), None)
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+
+
+def test_an_empty_matrix_copy_from_a_full_disk_does_not_lock_the_directory_for_ever(tmp_path):
+    m = tmp_path / "m.toml"
+    m.write_text(TINY)
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "matrix.toml").write_text("")  # what a full disk left behind
+    assert run_matrix(m, out, workers=1, progress=False)["run"] == 4
+    assert (out / "matrix.toml").read_text() == TINY
+
+
+def _strict_loads(text: str):
+    def refuse(token):
+        raise ValueError(f"not strict JSON: {token}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.mark.parametrize("args", [
+    ["solve", "fan_small", "--planner", "random", "--budget", "30", "--json"],
+    ["solve", "fan_small", "--planner", "random", "--budget", "30", "--json", "--heldout-every", "2"],
+    ["evaluate", "fan_small", "--task", "0", "--layout", "0,30,60", "--json"],
+    ["solvers", "--json"],
+    ["validate", "--json"],
+    ["cache", "info", "--json"],
+])
+def test_every_json_output_is_strict_json(args, capsys):
+    assert main(args) in (0, 1)
+    _strict_loads(capsys.readouterr().out)
+
+
+def test_a_case_path_is_found_beside_the_matrix_and_checked_before_any_work(tmp_path, plate_toml, capsys,
+                                                                         monkeypatch):
+    case = Path(plate_toml())
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "part.toml").write_text(case.read_text())
+    m = folder / "m.toml"
+    m.write_text(TINY.replace('"fan_small"', '"part.toml"').replace("tasks = 2", "tasks = 3"))
+    monkeypatch.chdir(tmp_path)  # not the matrix's folder
+    assert main(["run", str(m), "--out", str(tmp_path / "run"), "--workers", "1"]) == 0
+    assert len(load_results(tmp_path / "run")) == 4 and not load_results(tmp_path / "run")["error"].any()
+    m.write_text(TINY.replace('"fan_small"', '"part.toml"').replace("tasks = 2", "tasks = 50"))
+    assert main(["run", str(m), "--out", str(tmp_path / "run2"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "tasks" in err and "only 3" in err
+    assert not (tmp_path / "run2").exists()
+
+
+def test_an_out_under_a_file_is_one_line_and_exit_2(tmp_path, capsys):
+    m = tmp_path / "m.toml"
+    m.write_text(TINY)
+    (tmp_path / "plain").write_text("a file, not a folder")
+    assert main(["run", str(m), "--out", str(tmp_path / "plain" / "run"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Not a directory" in err and "Traceback" not in err
+
+
+def test_without_a_terminal_progress_is_plain_lines(tmp_path, capsys):
+    m = tmp_path / "m.toml"
+    m.write_text(TINY)
+    run_matrix(m, tmp_path / "run", workers=1, progress=False, plain_every=1e-9)
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 3 and all("cells done" in x and "ETA" in x for x in lines)  # cells 1..3 of 4
