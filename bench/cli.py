@@ -233,10 +233,15 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
     """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
     from bench.runner import run_matrix
 
-    summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
-                         cell_timeout=cell_timeout, retry_failed=retry_failed,
-                         progress=sys.stderr.isatty(), only=tuple(x.strip() for x in (only or "").split(",") if x),
-                         plain_every=60.0)
+    try:
+        summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
+                             cell_timeout=cell_timeout, retry_failed=retry_failed, progress=sys.stderr.isatty(),
+                             only=tuple(x.strip() for x in (only or "").split(",") if x), plain_every=60.0)
+    except KeyboardInterrupt as exc:
+        done = getattr(exc, "summary", {}).get("run", 0)
+        click.echo(f"fixbench: interrupted: {done} cells finished in this run and are kept in {out}; "
+                   "the same command resumes", err=True)
+        raise click.exceptions.Exit(130) from None
     click.echo(f"{summary['cells']} cells: {summary['run']} run ({summary['failed']} failed), "
                f"{summary['skipped']} already done"
                + (f", {summary['deferred']} left for a run without --only" if "deferred" in summary else "")
@@ -351,7 +356,9 @@ def cache_clear() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning user errors into one line and exit code 2."""
     try:
-        cli.main(args=argv, prog_name="fixbench", standalone_mode=False)
+        rv = cli.main(args=argv, prog_name="fixbench", standalone_mode=False)
+        if isinstance(rv, int) and not isinstance(rv, bool):  # click returns an Exit's code here
+            return rv
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.Abort:

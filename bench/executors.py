@@ -29,8 +29,11 @@ def _affinity(job: Job):
 
 
 def _worker(conn, threads: int) -> None:  # pragma: no cover - runs in a child process
+    import signal
+
     import numba
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops us quietly
     from cases.problem import set_cache_size
 
     numba.set_num_threads(threads)

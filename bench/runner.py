@@ -125,6 +125,10 @@ def _run_locked(matrix_path, text, store, cells, selected, executor, workers, ad
         bar.set_description("cells")
         jobs = [("cell", (c, references.get(reference_key(*c.problem_key)))) for c in todo]
         ex.run(jobs, on_cell)  # the same workers: their last problem's model is still built
+    except KeyboardInterrupt as exc:  # Ctrl-C: the finished rows are on disk; say how to go on
+        bar.close()
+        exc.summary = summary
+        raise
     finally:
         ex.close()
     bar.close()

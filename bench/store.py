@@ -152,6 +152,7 @@ class Store:
 
     def __init__(self, root: str | Path):
         self.root = Path(root)
+        self.damaged: list[Path] = []  # row files found damaged by the last finished()
 
     def row_path(self, cell_id: str) -> Path:
         return self.root / "rows" / f"{cell_id}.json"

@@ -206,3 +206,25 @@ def test_without_a_terminal_progress_is_plain_lines(tmp_path, capsys):
     run_matrix(m, tmp_path / "run", workers=1, progress=False, plain_every=1e-9)
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 3 and all("cells done" in x and "ETA" in x for x in lines)  # cells 1..3 of 4
+
+
+def test_ctrl_c_stops_quietly_keeps_the_rows_and_says_how_to_resume(tmp_path):
+    import signal
+    import time
+
+    m = tmp_path / "m.toml"
+    m.write_text(TINY.replace("seeds = [0, 1]", "seeds = [0, 1, 2, 3, 4, 5, 6, 7]"))
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", str(m), "--out", str(out), "--workers", "1"],
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and len(list((out / "rows").glob("*.json"))) < 2:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C sends: the whole process group
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 130
+    assert "Traceback" not in err and err.count("\n") == 1 and "the same command resumes" in err, err
+    store = Store(out)
+    done = len(store.finished())
+    assert 2 <= done < 16 and store.damaged == []
+    assert run_matrix(m, out, workers=1, progress=False)["run"] == 16 - done
