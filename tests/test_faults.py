@@ -228,3 +228,56 @@ def test_ctrl_c_stops_quietly_keeps_the_rows_and_says_how_to_resume(tmp_path):
     done = len(store.finished())
     assert 2 <= done < 16 and store.damaged == []
     assert run_matrix(m, out, workers=1, progress=False)["run"] == 16 - done
+
+
+_VALUES = st.one_of(st.integers(-5, 10**6), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                    st.booleans(), st.lists(st.integers(-3, 3), max_size=3), st.just("[[1, 2], [3]]"),
+                    st.just("{ a = 1 }"))
+
+
+def _mutate(text: str, data) -> str:
+    """Replace one value of one line (keeping the key), or cut the text, or splice junk in."""
+    lines = text.splitlines()
+    how = data.draw(st.sampled_from(["value", "cut", "junk", "drop"]))
+    if how == "cut":
+        return text[:data.draw(st.integers(0, len(text)))]
+    if how == "junk":
+        i = data.draw(st.integers(0, len(text)))
+        return text[:i] + data.draw(st.text(max_size=12)) + text[i:]
+    i = data.draw(st.sampled_from([k for k, ln in enumerate(lines) if "=" in ln]))
+    if how == "drop":
+        return "\n".join(lines[:i] + lines[i + 1:])
+    key = lines[i].split("=")[0]
+    v = data.draw(_VALUES)
+    lines[i] = f"{key}= {json.dumps(v) if not isinstance(v, str) or not v.startswith(('[', '{')) else v}"
+    return "\n".join(lines)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_malformed_matrices_never_give_a_traceback(tmp_path, data):
+    from bench.matrix import load_matrix
+    from cases.errors import FixbenchError
+
+    m = tmp_path / "m.toml"
+    m.write_text(_mutate(TINY, data), encoding="utf-8", errors="surrogatepass")
+    try:
+        load_matrix(m).cells()
+    except FixbenchError as exc:
+        assert "\n" not in str(exc)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_malformed_case_files_never_give_a_traceback(tmp_path, data):
+    from tests.conftest import PLATE
+
+    from cases.errors import FixbenchError
+    from cases.spec import load_case_spec
+
+    p = tmp_path / "case.toml"
+    p.write_text(_mutate(PLATE, data), encoding="utf-8", errors="surrogatepass")
+    try:
+        load_case_spec(str(p))
+    except FixbenchError as exc:
+        assert "\n" not in str(exc)
