@@ -270,10 +270,9 @@ def test_random_malformed_matrices_never_give_a_traceback(tmp_path, data):
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_malformed_case_files_never_give_a_traceback(tmp_path, data):
-    from tests.conftest import PLATE
-
     from cases.errors import FixbenchError
     from cases.spec import load_case_spec
+    from tests.conftest import PLATE
 
     p = tmp_path / "case.toml"
     p.write_text(_mutate(PLATE, data), encoding="utf-8", errors="surrogatepass")
