@@ -31,6 +31,17 @@ per layout). Budget: at least one layout must fit (one sample per task, or n_tas
 else :class:`PlannerError`. Beyond that it is a documented best effort: when the budget ends in the
 middle of an agent's check, the alternatives that still fit are evaluated (in random order), the
 best move among them is taken, and the restart stops unconverged (``info["converged"]``).
+
+Budgets too small for one move: when a task's budget cannot pay for the start and one complete
+check of the largest agent set (the wing panel at 100 samples a task: 667 candidates an agent),
+no best-response move can complete, and spending it all on part of one agent's check wastes it
+(measured: 9,290 % regret at the seed's protocol, ten times random search's). Greedy then falls
+back to sampling: half of the task's budget on random layouts (the warm-start layouts among them),
+the other half on sampled moves from the best of them: rounds of one random alternative per agent
+(the agents in random order), each round evaluated at once, the best move taken when it improves
+(``info["sampled"]`` counts the tasks). Measured (mean max um, 3 seeds; not against a reference):
+wing panel at 100 samples a task (20 of its tasks) 21.6 against random's 23.9 and 28.8 for moves
+alone; at 20 a task 53.8 against 50.6; wing_panel_small at 6 a task 154 against 152.
 """
 
 from __future__ import annotations
@@ -83,6 +94,9 @@ class Greedy(Planner):
         """Run restarts within ``budget``: [(sweeps, converged) per restart]. ``ev`` keeps the best.
         The first starts from the best of the ``warm`` layouts when there are any."""
         runs, spent = [], 0
+        if budget < cost * max(len(a) for a in problem.action_sets):  # not one complete check: sample moves
+            start = warm[:int(min(len(warm), budget // cost))] if warm is not None and len(warm) else None
+            return [_sample_moves(problem, evaluate, cost, budget, rng, start)]
         for i in range(self.config.restarts):
             if budget - spent < cost:
                 break
@@ -127,7 +141,37 @@ def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.rando
     return math.ceil(checks / n), since >= n, spent
 
 
+def _sample_moves(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
+                  start: np.ndarray | None = None) -> tuple[int, bool]:
+    """The small-budget fallback (module doc): (rounds of moves, None); the None marks it in ``info``."""
+    k = max(1, int(budget // cost) // 2)
+    starts = random_layouts(problem, rng, k)
+    if start is not None:
+        starts = np.vstack([start, starts])[:max(k, len(start))]
+    values = evaluate(starts)
+    layout, value = starts[int(np.argmin(values))], float(np.min(values))
+    spent, rounds = cost * len(starts), 0
+    n = problem.n_agents
+    while budget - spent >= cost:
+        k = int(min(n, (budget - spent) // cost))
+        agents = rng.permutation(n)[:k]
+        trial = np.tile(layout, (k, 1))
+        for j, a in enumerate(agents):
+            alts = problem.action_sets[a][problem.action_sets[a] != layout[a]]
+            if len(alts):
+                trial[j, a] = alts[rng.integers(len(alts))]
+        values = evaluate(trial)
+        spent += cost * k
+        rounds += 1
+        i = int(np.argmin(values))
+        if values[i] < value:
+            layout, value = trial[i], float(values[i])
+    return rounds, None
+
+
 def _info(runs: list[list[tuple[int, bool]]]) -> dict:
-    """Per task (one entry in shared mode): restarts run, sweeps and convergence of each."""
+    """Per task (one entry in shared mode): restarts run, sweeps and convergence of each; tasks where
+    the budget paid for no complete check (sampled moves instead) have converged ``[None]``."""
     return {"restarts": [len(r) for r in runs], "sweeps": [[s for s, _ in r] for r in runs],
-            "converged": [[c for _, c in r] for r in runs]}
+            "converged": [[c for _, c in r] for r in runs],
+            "sampled": sum(1 for r in runs if r and r[0][1] is None)}
