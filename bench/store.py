@@ -77,8 +77,10 @@ ROW_SCHEMA = {
 }
 
 
-#: what every row must hold, with its type (rows of any version since the first)
-REQUIRED = {"schema": int, "cell": str, "planner": str, "case": str, "mode": str, "error": str}
+#: what every row must hold, with its type (rows of any version since the first; rows of early
+#: runs have no schema, mode or error key: they read as schema 1, per-task, no error)
+REQUIRED = {"cell": str, "planner": str, "case": str}
+OPTIONAL = {"schema": int, "mode": str, "error": str}
 CHECKSUM = "row_sha1"
 
 
@@ -126,9 +128,15 @@ def check_row(row, cell_id: str) -> str:
     if not isinstance(row, dict):
         return "not a JSON object"
     for key, kind in REQUIRED.items():
-        if not isinstance(row.get(key), kind) or isinstance(row.get(key), bool):
+        if not isinstance(row.get(key), kind):
             return f"key '{key}' missing or not a {kind.__name__}"
-    if row["schema"] != SCHEMA_VERSION:
+    for key, kind in OPTIONAL.items():
+        v = row.get(key)
+        if v is None or (isinstance(v, float) and math.isnan(v)):  # missing (null or NaN): an early row
+            continue
+        if isinstance(v, bool) or not isinstance(v, kind):
+            return f"key '{key}' is not a {kind.__name__}"
+    if isinstance(row.get("schema"), int) and row["schema"] != SCHEMA_VERSION:
         return f"schema {row['schema']}, this fixbench reads {SCHEMA_VERSION}"
     if row["cell"] != cell_id:
         return f"holds cell {row['cell']!r}, not {cell_id!r}"
@@ -136,10 +144,11 @@ def check_row(row, cell_id: str) -> str:
         return "checksum does not match its content"
     for key in ("objective_m", "mean_max_deformation_m", "samples"):
         v = row.get(key)
-        if v is not None and not isinstance(v, (int, float)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
             return f"key '{key}' is not a number"
-        if not row["error"] and isinstance(v, float) and (math.isnan(v) or v < 0):
-            return f"key '{key}' is {v} in a row without error"
+    v = row.get("objective_m")
+    if isinstance(v, (int, float)) and v < 0:
+        return f"objective_m is {v} (a deformation cannot be negative)"
     return ""
 
 

@@ -432,7 +432,8 @@ def test_main_table_ranks(swept, tmp_path):
 
 def test_old_run_directory_without_new_columns(tmp_path):
     run = fake_run(tmp_path / "run")
-    new = ("label", "samples_per_task", "heldout_every", "n_scored_tasks", "per_task_m", "reference_source")
+    new = ("label", "samples_per_task", "heldout_every", "n_scored_tasks", "per_task_m", "reference_source",
+           "setup_s", "row_sha1")  # rows of older runs had none of these (nor a checksum)
     for p in (run / "rows").glob("*.json"):
         row = json.loads(p.read_text())
         write_json_atomic(p, {k: v for k, v in row.items() if k not in new})
