@@ -253,30 +253,30 @@ def _mutate(text: str, data) -> str:
     return "\n".join(lines)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(data=st.data())
-def test_random_malformed_matrices_never_give_a_traceback(tmp_path, data):
+def _load_matrix(path: Path) -> None:
     from bench.matrix import load_matrix
-    from cases.errors import FixbenchError
 
-    m = tmp_path / "m.toml"
-    m.write_text(_mutate(TINY, data), encoding="utf-8", errors="surrogatepass")
-    try:
-        load_matrix(m).cells()
-    except FixbenchError as exc:
-        assert "\n" not in str(exc)
+    load_matrix(path).cells()
 
 
+def _load_case(path: Path) -> None:
+    from cases.spec import load_case_spec
+
+    load_case_spec(str(path))
+
+
+@pytest.mark.parametrize("template,load", [(TINY, _load_matrix), ("PLATE", _load_case)], ids=["matrix", "case"])
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
-def test_random_malformed_case_files_never_give_a_traceback(tmp_path, data):
+def test_random_malformed_files_never_give_a_traceback(tmp_path, template, load, data):
+    """Random malformed matrix and case files: a one-line FixbenchError or success, nothing else."""
     from cases.errors import FixbenchError
-    from cases.spec import load_case_spec
     from tests.conftest import PLATE
 
-    p = tmp_path / "case.toml"
-    p.write_text(_mutate(PLATE, data), encoding="utf-8", errors="surrogatepass")
+    p = tmp_path / "file.toml"
+    p.write_text(_mutate(PLATE if template == "PLATE" else template, data), encoding="utf-8",
+                 errors="surrogatepass")
     try:
-        load_case_spec(str(p))
+        load(p)
     except FixbenchError as exc:
         assert "\n" not in str(exc)
