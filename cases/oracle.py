@@ -121,6 +121,7 @@ class Oracle:
         if saved is not None and set(saved) != {f"{f}.{k}" for f in model.active for k in ("C", "H", "d0", "m0")}:
             saved = None
         self.from_cache = saved is not None
+        self._complete = False
         self.fields = {f: FieldOracle(model, f, candidates,
                                       None if saved is None else {k: saved[f"{f}.{k}"] for k in ("C", "H", "d0", "m0")})
                        for f in model.active}
@@ -128,8 +129,11 @@ class Oracle:
 
     @property
     def complete(self) -> bool:
-        """Whether every candidate's compliance columns are computed."""
-        return all(fo.done.all() for fo in self.fields.values())
+        """Whether every candidate's compliance columns are computed (once true, for good: asked on
+        every evaluation, so the scan over the done flags stops then)."""
+        if not self._complete:
+            self._complete = all(fo.done.all() for fo in self.fields.values())
+        return self._complete
 
     def full_bytes(self) -> int:
         """Memory of the complete data (C, H, d0, m0 of every field)."""
