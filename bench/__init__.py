@@ -1,5 +1,5 @@
 """fixbench's harness: benchmark matrices, executors, the results store, reports and the CLI."""
 
-from bench.store import load_results
+from fixbench.bench.store import load_results
 
 __all__ = ["load_results"]

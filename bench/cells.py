@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.matrix import Cell, task_subset
-from cases.problem import Problem
-from cases.spec import load_case_spec
+from fixbench.bench.matrix import Cell, task_subset
+from fixbench.cases.problem import Problem
+from fixbench.cases.spec import load_case_spec
 
 _PROBLEMS: dict[tuple, Problem] = {}
 REFERENCE_OPTIMAL_REWARD = 0.7854  # the reference code's stand-in for the optimal step reward (~pi/4)
@@ -59,10 +59,10 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
                       modes: tuple[str, ...]) -> dict:
     """The regret reference of a problem: the ``exact`` planner's optimum (proven, or best known with
     its MILP gap); where ``exact`` refuses (too large), the shipped catalog reference of the case
-    (:mod:`cases.references`: the portfolio's best-known layouts), restricted to the problem's tasks.
+    (:mod:`fixbench.cases.references`: the portfolio's best-known layouts), restricted to the problem's tasks.
     ``source`` says which was used."""
-    from solvers.base import PlannerError
-    from solvers.registry import get
+    from fixbench.solvers.base import PlannerError
+    from fixbench.solvers.registry import get
 
     p = problem_for(case, material, agents, tasks)
     ref = {"key": reference_key(case, material, agents, tasks), "case": case, "material":
@@ -95,8 +95,8 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
 
 def shipped_reference(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
     """The shipped reference of a catalog case for ``tasks`` of its tasks (all: None), or None."""
-    from cases.references import load_reference
-    from cases.spec import case_names
+    from fixbench.cases.references import load_reference
+    from fixbench.cases.spec import case_names
 
     if case not in case_names():
         return None
@@ -159,7 +159,7 @@ def base_row(cell: Cell) -> dict:
 
 def run_cell(cell: Cell, reference: dict | None) -> dict:
     """Run one cell; returns {"row": ..., "trace": records, "curves": records}. Never raises."""
-    from solvers.registry import get
+    from fixbench.solvers.registry import get
 
     row = base_row(cell)
     t0, c0 = time.perf_counter(), time.process_time()

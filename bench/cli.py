@@ -13,11 +13,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from cases.errors import FixbenchError
+from fixbench.cases.errors import FixbenchError
 
 
 def _problem(case: str, material: str | None, agents: int | None = None):
-    from cases.problem import load_problem
+    from fixbench.cases.problem import load_problem
 
     return load_problem(case, material=material, agents=agents)
 
@@ -64,8 +64,8 @@ def cases(as_json: bool) -> None:
     import pandas as pd
     from tqdm import tqdm
 
-    from cases.problem import Problem
-    from cases.spec import case_names, load_case_spec
+    from fixbench.cases.problem import Problem
+    from fixbench.cases.spec import case_names, load_case_spec
 
     rows = []
     for name in tqdm(case_names(), desc="meshing cases", disable=as_json or not sys.stderr.isatty()):
@@ -88,7 +88,7 @@ def cases(as_json: bool) -> None:
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG file to write.")
 def show(case: str, material: str | None, out: Path | None) -> None:
     """Picture of CASE: part, mesh, candidates coloured by agent, supports, tasks."""
-    from bench.plots import show_case
+    from fixbench.bench.plots import show_case
 
     problem = _problem(case, material)
     path = show_case(problem, out or Path(f"{problem.name}.png"))
@@ -112,11 +112,11 @@ def evaluate(case, task, layout, material, as_json, plot, vtk) -> None:
     result = {"case": problem.name, "material": problem.spec.material.name, "task": task,
               "layout": idx, **d.row(0), "samples": ev.samples}
     if plot:
-        from bench.plots import field_plot
+        from fixbench.bench.plots import field_plot
 
         field_plot(problem, task, idx, plot)
     if vtk:
-        from bench.plots import write_vtk
+        from fixbench.bench.plots import write_vtk
 
         write_vtk(problem, task, idx, vtk)
     if as_json:
@@ -131,7 +131,7 @@ def evaluate(case, task, layout, material, as_json, plot, vtk) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list of checks.")
 def validate(as_json: bool) -> None:
     """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%."""
-    from cases.analytic import validate as run
+    from fixbench.cases.analytic import validate as run
 
     checks = run()
     if as_json:
@@ -150,7 +150,7 @@ def validate(as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
 def perf(case: str, batch: int, as_json: bool) -> None:
     """Oracle against re-assembly + direct sparse solve, run side by side."""
-    from bench.perf import run_perf
+    from fixbench.bench.perf import run_perf
 
     res = run_perf(case, batch=batch, progress=not as_json)
     if as_json:
@@ -164,7 +164,7 @@ def perf(case: str, batch: int, as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
 def solvers(as_json: bool) -> None:
     """List the registered planners (built-ins and plugins) with one-line descriptions."""
-    from solvers.registry import available
+    from fixbench.solvers.registry import available
 
     rows = [{"planner": n, "description": c.description, "modes": list(c.modes),
              "module": c.__module__} for n, c in available().items()]
@@ -192,8 +192,8 @@ def solvers(as_json: bool) -> None:
               help="PNG of the anytime curves (best so far against samples).")
 def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldout_every, as_json, plot) -> None:
     """Plan fixture layouts for CASE with one planner and report what it reached."""
-    from solvers.config import apply_sets
-    from solvers.registry import get
+    from fixbench.solvers.config import apply_sets
+    from fixbench.solvers.registry import get
 
     if budget is not None and budget <= 0:
         raise click.BadParameter(f"must be positive, got {budget}", param_hint="--budget")
@@ -203,7 +203,7 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
     train = None if heldout_every is None else list(range(0, problem.n_tasks, heldout_every))
     result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
     if plot:
-        from bench.plots import anytime_plot
+        from fixbench.bench.plots import anytime_plot
 
         anytime_plot(result, plot)
     summary = result.summary()
@@ -231,7 +231,7 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
               "completes the matrix.")
 def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
     """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
-    from bench.runner import run_matrix
+    from fixbench.bench.runner import run_matrix
 
     try:
         summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
@@ -258,7 +258,7 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
               help="Skip the deformation-field pictures (they rebuild each case's FE model).")
 def report(run_dir, out, no_fields) -> None:
     """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR."""
-    from bench.report import make_report
+    from fixbench.bench.report import make_report
 
     res = make_report(run_dir, out, fields=not no_fields)
     click.echo(f"wrote {res['report']} ({len(res['tables'])} tables, {len(res['figures'])} figures"
@@ -283,7 +283,7 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
     """Run the reference portfolio on CASE and write (or improve) its shipped reference."""
     from dataclasses import replace
 
-    from bench.references import Portfolio, build_and_write
+    from fixbench.bench.references import Portfolio, build_and_write
 
     effort = Portfolio()
     if samples_per_task is not None:
@@ -302,7 +302,7 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
               help="References folder (default: the catalog's).")
 def references_update(run_dir, out) -> None:
     """Replace shipped reference layouts that any run in RUN_DIR beats (re-measured first)."""
-    from bench.references import update
+    from fixbench.bench.references import update
 
     changed = update(run_dir, echo=lambda m: click.echo(m, err=True), folder=out)
     click.echo(f"{sum(changed.values())} tasks replaced in {len(changed)} reference files")
@@ -312,7 +312,7 @@ def references_update(run_dir, out) -> None:
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def references_rescore(run_dir) -> None:
     """Recompute RUN_DIR's regret columns against the shipped references as they are now."""
-    from bench.references import rescore
+    from fixbench.bench.references import rescore
 
     rescore(run_dir, echo=click.echo)
 
@@ -328,7 +328,7 @@ def cache_info(as_json: bool) -> None:
     """Where the cache is, its size limit, and every entry (newest use first)."""
     import time
 
-    from cases import cache as oracle_cache
+    from fixbench.cases import cache as oracle_cache
 
     base, es = oracle_cache.root(), oracle_cache.entries()
     if as_json:
@@ -348,7 +348,7 @@ def cache_info(as_json: bool) -> None:
 @cache.command("clear")
 def cache_clear() -> None:
     """Remove every entry (they are rebuilt when next needed)."""
-    from cases import cache as oracle_cache
+    from fixbench.cases import cache as oracle_cache
 
     click.echo(f"removed {oracle_cache.clear()} entries from {oracle_cache.root()}")
 

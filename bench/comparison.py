@@ -1,6 +1,6 @@
 """The comparison fixbench exists for: planners (MARL and classical) at equal samples.
 
-:func:`bench.report.make_report` writes these as report sections:
+:func:`fixbench.bench.report.make_report` writes these as report sections:
 
     main_table          the README's main table: mean relative regret per case and mean rank over problems
     sweep_table         budget sweep: relative regret per case x planner x samples a task, with its figure
@@ -8,12 +8,12 @@
                         beside planners that pay samples on every task, scored on the same tasks
     improvement_table   rliable's probability of improvement P(X < Y) between every ordered pair of planners
 
-Relative regret is ``objective / reference objective - 1`` (:mod:`bench.cells`); every statistic leaves
+Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
 bootstraps (``scipy.stats.bootstrap``, ``N_BOOT`` resamples, a fresh generator seeded with ``BOOT_SEED``
 per interval), so the same rows always give the same tables.
 
-The module also holds what :mod:`bench.report` shares with it: number formatting, the reference key of
+The module also holds what :mod:`fixbench.bench.report` shares with it: number formatting, the reference key of
 a row and the figure layout helpers (grid of panels, one legend per figure).
 """
 
@@ -41,7 +41,7 @@ REGRET_FLOOR_PCT = 1e-3
 RANK_PROBLEM = ("case", "material", "seed", "agents", "n_tasks", "mode")
 
 
-# shared with bench.report ---------------------------------------------------------------------------
+# shared with fixbench.bench.report ---------------------------------------------------------------------------
 
 def fmt(v, digits: int = 3) -> str:
     """A number with ``digits`` significant digits; ``-`` for None and non-finite values."""
@@ -66,7 +66,7 @@ def setting_text(key: str, v) -> object:
 
 
 def ref_key(row) -> tuple | None:
-    """The key of a row's regret reference in :func:`bench.report.load_references`:
+    """The key of a row's regret reference in :func:`fixbench.bench.report.load_references`:
     (case, material, agents, n_tasks); None when the row lacks them (a failed cell)."""
     try:
         return (row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))

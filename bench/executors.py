@@ -1,6 +1,6 @@
 """Executors: run jobs (references and cells) on local processes or on a Ray cluster.
 
-Both call :func:`bench.cells.execute` on every job and hand each result to the driver as soon as
+Both call :func:`fixbench.bench.cells.execute` on every job and hand each result to the driver as soon as
 it is done, so results are identical whichever runs them (for deterministic planners). A job that
 exceeds the timeout is stopped and comes back as an error; so does a worker that dies.
 """
@@ -15,7 +15,7 @@ from multiprocessing.connection import wait
 
 import psutil
 
-from bench.cells import execute
+from fixbench.bench.cells import execute
 
 Job = tuple  # ("reference", args) | ("cell", (cell, reference))
 #: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)
@@ -34,7 +34,7 @@ def _worker(conn, threads: int) -> None:  # pragma: no cover - runs in a child p
     import numba
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops us quietly
-    from cases.problem import set_cache_size
+    from fixbench.cases.problem import set_cache_size
 
     numba.set_num_threads(threads)
     set_cache_size(1)  # jobs arrive grouped by problem: an older model is not needed again

@@ -1,9 +1,9 @@
 """One command for a machine with a GPU: the published protocol on CUDA beside the CPU, same seeds.
 
-    python -m bench.gpu_check [--case wing_panel] [--planner nashq] [--seeds 0,1] [--threads 2]
+    python -m fixbench.bench.gpu_check [--case wing_panel] [--planner nashq] [--seeds 0,1] [--threads 2]
                               [--episodes 100] [--json]
 
-For each seed it runs ``python -m bench.marl speed`` once with ``--device cuda`` and once on the
+For each seed it runs ``python -m fixbench.bench.marl speed`` once with ``--device cuda`` and once on the
 CPU (``--threads``), each in a fresh process (the oracle set-up is shared through the disk cache and
 kept out of the times), and prints per device: wall time of training and its split (oracle,
 selection, updates), the greedy policy's mean max deformation and the mean return of the last ten
@@ -24,14 +24,14 @@ import numpy as np
 
 
 def _run(case: str, planner: str, seed: int, episodes: int, device: str, threads: int) -> dict:
-    cmd = [sys.executable, "-m", "bench.marl", "speed", "--case", case, "--planner", planner, "--seed", str(seed),
-           "--episodes", str(episodes), "--device", device, "--threads", str(threads), "--json"]
+    cmd = [sys.executable, "-m", "fixbench.bench.marl", "speed", "--case", case, "--planner", planner,
+           "--seed", str(seed), "--episodes", str(episodes), "--device", device, "--threads", str(threads), "--json"]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     return json.loads(out)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.gpu_check", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.gpu_check", description=__doc__.split("\n")[0])
     ap.add_argument("--case", default="wing_panel")
     ap.add_argument("--planner", default="nashq")
     ap.add_argument("--seeds", default="0,1")

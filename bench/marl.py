@@ -1,10 +1,11 @@
 """MARL benchmark: the seed's Figure 4, the speed of the reference protocol, and small-case optima.
 
-    python -m bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
-    python -m bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
-                                 [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
-    python -m bench.marl table   [--episodes 100] [--seed 0] [--json]
-    python -m bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2] [--episodes 100] [--json]
+    python -m fixbench.bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
+    python -m fixbench.bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
+                                          [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
+    python -m fixbench.bench.marl table   [--episodes 100] [--seed 0] [--json]
+    python -m fixbench.bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
+                                          [--episodes 100] [--json]
 
 ``figure4`` draws (a) step reward against step, (b) episodic return and (c) episodic regret (the
 reference's N T 0.7854 - N sum r, and the true regret against the best layout seen) against
@@ -35,8 +36,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cases.problem import Problem, load_problem  # noqa: E402
-from cases.spec import case_names  # noqa: E402
+from fixbench.cases.problem import Problem, load_problem  # noqa: E402
+from fixbench.cases.spec import case_names  # noqa: E402
 
 
 def _runs(info_or_results) -> dict[str, tuple[dict, np.ndarray | None]]:
@@ -146,7 +147,7 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
     With ``figures`` (a directory), the same run's Figure 4 panels and its training record
     (``training.json``) are written there too.
     """
-    from solvers.registry import get
+    from fixbench.solvers.registry import get
 
     problem = load_problem(case, agents=agents)
     setup = prepare(problem)
@@ -170,7 +171,7 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
 
 def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list[dict]:
     """Greedy-policy mean max deformation of each planner against the proven optimum, *_small cases."""
-    from solvers.registry import available, get
+    from fixbench.solvers.registry import available, get
 
     rows = []
     for case in [c for c in case_names() if c.endswith("_small")]:
@@ -204,8 +205,8 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", fraction: float = 
     each per-task budget. Gap: mean max deformation over the held-out tasks against the best layout any
     of these runs found on each task (no proven optimum at this size).
     """
-    from solvers.base import PlannerError
-    from solvers.registry import get
+    from fixbench.solvers.base import PlannerError
+    from fixbench.solvers.registry import get
 
     problem = load_problem(case)
     prepare(problem)
@@ -240,7 +241,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", fraction: float = 
 
 
 def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
-    """Per-task optimum by enumeration on the uncounted oracle (fallback without solvers.exact)."""
+    """Per-task optimum by enumeration on the uncounted oracle (fallback without fixbench.solvers.exact)."""
     sets = problem.action_sets
     total = problem.joint_size
     best = np.full(problem.n_tasks, np.inf)
@@ -257,7 +258,7 @@ def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m bench.marl", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.marl", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     f = sub.add_parser("figure4")
     f.add_argument("--case", default="wing_panel")
@@ -290,7 +291,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     if args.cmd == "figure4":
-        from solvers.registry import get
+        from fixbench.solvers.registry import get
 
         results = {}
         for n in [int(x) for x in args.agents.split(",")]:

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cases.errors import CaseError
-from cases.materials import MATERIALS
-from cases.spec import resolve_case
-from cases.units import Reader
+from fixbench.cases.errors import CaseError
+from fixbench.cases.materials import MATERIALS
+from fixbench.cases.spec import resolve_case
+from fixbench.cases.units import Reader
 
 KEYS = ("name", "cases", "materials", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
         "tasks", "heldout_every", "description")
@@ -138,8 +138,8 @@ def _list(r: Reader, key: str, kind, default=...) -> list:
 
 def load_matrix(path: str | Path) -> Matrix:
     """Read and check a matrix file; every problem is a one-line CaseError (file, key, problem)."""
-    from solvers.config import apply_sets
-    from solvers.registry import get, names
+    from fixbench.solvers.config import apply_sets
+    from fixbench.solvers.registry import get, names
 
     path = Path(path)
     source = str(path)
@@ -191,7 +191,7 @@ def load_matrix(path: str | Path) -> Matrix:
             raise r.error("mode", f"must be one of {', '.join(MODES)}, got '{m}'")
     tasks = r.integer("tasks", None, minimum=1)
     if tasks is not None:
-        from cases.spec import load_case_spec
+        from fixbench.cases.spec import load_case_spec
 
         for c in cases:
             try:

@@ -5,7 +5,7 @@ All timings come from one process on the same machine, so the ratios are what co
   constraints, sparse solve) divided by the median time of one oracle evaluation;
 - ``batched_layouts_per_s``: one call evaluating many random layouts;
 - ``precompute_s``: model build + factorisations + compliance columns of every candidate, computed
-  afresh (the disk cache of :mod:`cases.cache` is neither read nor written here);
+  afresh (the disk cache of :mod:`fixbench.cases.cache` is neither read nor written here);
 - ``peak_rss_mb``: the process's peak resident memory after all of the above.
 """
 
@@ -17,8 +17,8 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from cases.oracle import Oracle
-from cases.problem import load_problem
+from fixbench.cases.oracle import Oracle
+from fixbench.cases.problem import load_problem
 
 
 def _median_time(fn, repeat: int) -> float:

@@ -12,7 +12,7 @@ import matplotlib.tri as mtri  # noqa: E402
 import meshio  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cases.problem import Problem  # noqa: E402
+from fixbench.cases.problem import Problem  # noqa: E402
 
 
 def _outline(ax, problem: Problem) -> None:

@@ -1,7 +1,7 @@
 """The reference portfolio: an uncounted, large-budget search for the best layout of every task.
 
 ``fixbench references build CASE [--material M] [--agents N]`` runs it and writes the shipped
-reference (:mod:`cases.references`); ``fixbench references update DIR`` merges into the shipped
+reference (:mod:`fixbench.cases.references`); ``fixbench references update DIR`` merges into the shipped
 references every layout of a run directory that beats them (each one re-measured on the oracle,
 never taken from the row on trust) and rescores the run's rows against them; ``fixbench references
 rescore DIR`` rescores another run directory against the shipped references as they are now.
@@ -19,7 +19,7 @@ are. ``planners`` may be empty (exchange rounds only).
 
 2. **Neighbour exchange.** Rounds over the tasks, forward then backward: each task tries the
    current best layouts of its ``exchange`` nearest tasks (by task features) and its own, and a
-   local search (:func:`solvers.local.local_search`, ``polish_samples`` layouts) polishes the
+   local search (:func:`fixbench.solvers.local.local_search`, ``polish_samples`` layouts) polishes the
    best of them. A better layout found on a task is passed on within the same round. Rounds stop
    when one brings no improvement (relative 1e-9) or after ``max_rounds``.
 
@@ -39,10 +39,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from cases.materials import MATERIALS
-from cases.problem import Problem, load_problem
-from cases.references import case_fingerprint, load_reference, write_reference
-from cases.spec import resolve_case
+from fixbench.cases.materials import MATERIALS
+from fixbench.cases.problem import Problem, load_problem
+from fixbench.cases.references import case_fingerprint, load_reference, write_reference
+from fixbench.cases.spec import resolve_case
 
 
 @dataclass(frozen=True)
@@ -92,10 +92,10 @@ class _Progress:
 def build(case: str, material: str | None = None, agents: int | None = None, effort: Portfolio | None = None,
           echo=print, problem: Problem | None = None) -> dict:
     """Run the portfolio on a catalog case; returns the reference record (not yet written)."""
-    from solvers.base import random_layouts
-    from solvers.local import LocalConfig, local_search
-    from solvers.registry import get
-    from solvers.transfer import nearest_tasks, scaled_features
+    from fixbench.solvers.base import random_layouts
+    from fixbench.solvers.local import LocalConfig, local_search
+    from fixbench.solvers.registry import get
+    from fixbench.solvers.transfer import nearest_tasks, scaled_features
 
     effort = effort or Portfolio()
     p = problem or load_problem(case, material=material, agents=agents)
@@ -221,10 +221,10 @@ def update(run_dir, echo=print, folder=None) -> dict:
     import json
     from pathlib import Path
 
-    from bench.matrix import task_subset
-    from bench.store import load_results
-    from cases.references import reference_path
-    from cases.spec import case_names
+    from fixbench.bench.matrix import task_subset
+    from fixbench.bench.store import load_results
+    from fixbench.cases.references import reference_path
+    from fixbench.cases.spec import case_names
 
     rows = load_results(run_dir)
     rows = rows[(rows["error"].fillna("") == "") & rows["mode"].isin(["per-task", "held-out"])
@@ -271,7 +271,7 @@ def update(run_dir, echo=print, folder=None) -> dict:
 
 
 class _Scored:
-    """What :func:`bench.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
+    """What :func:`fixbench.bench.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
 
     def __init__(self, row: dict, trace: np.ndarray):
         import json
@@ -304,8 +304,8 @@ def rescore(run_dir, echo=print) -> int:
 
     import pandas as pd
 
-    from bench.cells import metrics, shipped_reference
-    from bench.store import Store, write_json_atomic
+    from fixbench.bench.cells import metrics, shipped_reference
+    from fixbench.bench.store import Store, write_json_atomic
 
     store = Store(run_dir)
     rows = store.finished()
@@ -349,7 +349,7 @@ def check_small(cases: tuple[str, ...] = ("wing_panel_small", "wing_spar_small",
     case and material, on how many tasks it reached the optimum (to 1e-9) and its worst gap."""
     from dataclasses import replace
 
-    from solvers.registry import get
+    from fixbench.solvers.registry import get
 
     effort = replace(effort or Portfolio(), prove_limit=0)
     out = []
@@ -370,11 +370,11 @@ def check_small(cases: tuple[str, ...] = ("wing_panel_small", "wing_spar_small",
 
 
 def main(argv=None) -> None:
-    """``python -m bench.references check [--json]``: the portfolio against proven optima."""
+    """``python -m fixbench.bench.references check [--json]``: the portfolio against proven optima."""
     import argparse
     import json
 
-    ap = argparse.ArgumentParser(prog="python -m bench.references", description=main.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.references", description=main.__doc__)
     ap.add_argument("command", choices=["check"])
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)

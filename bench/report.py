@@ -1,6 +1,6 @@
 """``fixbench report``: tables and figures of a run directory (see README "Reports").
 
-Everything is read back from the results store (:mod:`bench.store`): rows, anytime traces,
+Everything is read back from the results store (:mod:`fixbench.bench.store`): rows, anytime traces,
 learners' training curves and the regret references. The report folder gets
 
     report.md                   the tables (Markdown) and the figures (relative links)
@@ -14,7 +14,7 @@ Dolan-More performance profiles. Cells whose row carries an error are counted in
 out of every statistic. The bootstrap generator has a fixed seed and PDFs carry no creation date, so
 the same run directory always gives the same report.
 
-The comparison fixbench exists for (planners at equal samples) comes from :mod:`bench.comparison`:
+The comparison fixbench exists for (planners at equal samples) comes from :mod:`fixbench.bench.comparison`:
 the main table (``main``: regret per case, mean rank over problems), the budget sweep (``sweep``, table
 and figure), the held-out track (``heldout``) and rliable's probability of improvement
 (``improvement``); a section the run has no rows for is skipped with its reason.
@@ -38,7 +38,7 @@ import seaborn as sns  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from scipy.stats import trim_mean  # noqa: E402
 
-from bench.comparison import (  # noqa: E402
+from fixbench.bench.comparison import (  # noqa: E402
     BOOT_SEED,
     N_BOOT,
     ci_text,
@@ -58,8 +58,8 @@ from bench.comparison import (  # noqa: E402
     sweep_figure,
     sweep_table,
 )
-from bench.store import load_curves, load_results, load_traces  # noqa: E402
-from cases.errors import CaseError  # noqa: E402
+from fixbench.bench.store import load_curves, load_results, load_traces  # noqa: E402
+from fixbench.cases.errors import CaseError  # noqa: E402
 
 TARGETS = (0.01, 0.02, 0.05, 0.10, 0.20)
 #: settings that split the summary into separate groups when the run varies them
@@ -563,7 +563,7 @@ def figure4(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict
 # deformation fields ---------------------------------------------------------------------------------
 
 def _problem_for_row(row):
-    from bench.cells import problem_for
+    from fixbench.bench.cells import problem_for
 
     n_tasks = int(row["n_tasks"])
     p = problem_for(row["case"], row["material"], None, n_tasks)
@@ -643,7 +643,7 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
 
 
 def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
-    """The budget sweep, held-out and probability-of-improvement tables (:mod:`bench.comparison`),
+    """The budget sweep, held-out and probability-of-improvement tables (:mod:`fixbench.bench.comparison`),
     each skipped with its reason when the run lacks its rows. Returns the sweep table, whose figure
     comes with the figures."""
     sweep = sweep_table(rows)
@@ -837,5 +837,5 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
 
 
 def _figure4(ok, curves, cells, refs, colors):
-    """The learners' Figure 4: bench.marl.figure4 when present, else :func:`figure4` here."""
+    """The learners' Figure 4: fixbench.bench.marl.figure4 when present, else :func:`figure4` here."""
     return figure4(ok, curves, cells, refs, colors)

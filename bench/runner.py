@@ -16,20 +16,20 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from bench.cells import base_row, reference_key
-from bench.matrix import load_matrix
-from bench.store import Store, write_text_atomic
-from cases.errors import CaseError
+from fixbench.bench.cells import base_row, reference_key
+from fixbench.bench.matrix import load_matrix
+from fixbench.bench.store import Store, write_text_atomic
+from fixbench.cases.errors import CaseError
 
 
 def make_executor(kind: str, workers: int | None, timeout: float | None, address: str | None):
     if kind == "ray":
         try:
-            from bench.executors import RayExecutor
+            from fixbench.bench.executors import RayExecutor
         except ImportError:  # pragma: no cover - ray is an optional extra
             raise CaseError("--executor", "ray", "Ray is not installed (pip install 'fixbench[ray]')") from None
         return RayExecutor(workers, timeout, address)
-    from bench.executors import LocalExecutor
+    from fixbench.bench.executors import LocalExecutor
 
     return LocalExecutor(workers, timeout)
 
@@ -100,7 +100,7 @@ def _run_locked(matrix_path, text, store, cells, selected, executor, workers, ad
         key = reference_key(case, material, agents, tasks)
         ref = result["reference"] if result else {"key": key, "error": error, "per_task": None}
         references[key] = ref
-        from bench.store import write_json_atomic
+        from fixbench.bench.store import write_json_atomic
 
         write_json_atomic(store.reference_path(key), ref)
         bar.update()

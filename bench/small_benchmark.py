@@ -1,6 +1,6 @@
 """Exact optima of the ``*_small`` cases, and how close the search planners get at 2 % of it.
 
-Not a test: a closing-note benchmark. ``python -m bench.small_benchmark [CASE ...]`` prints one
+Not a test: a closing-note benchmark. ``python -m fixbench.bench.small_benchmark [CASE ...]`` prints one
 row per case: set-up time (FE model and oracle), exact's wall time and its mean max deformation
 (per-task mode), then greedy's, GA's and PSO's mean over seeds of their gap in mean max deformation
 with a budget of 2 % of the enumeration's samples.
@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from cases import load_problem
-from solvers import get
+from fixbench.cases import load_problem
+from fixbench.solvers import get
 
 CASES = ("fan_small", "wing_panel_small", "wing_spar_small", "bus_panel_small")
 SEARCHERS = ("greedy", "ga", "pso", "random")

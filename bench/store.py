@@ -34,7 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from cases.errors import CaseError
+from fixbench.cases.errors import CaseError
 
 SCHEMA_VERSION = 1
 

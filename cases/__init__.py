@@ -3,11 +3,11 @@
 Nothing here knows a planner exists (dependencies point bench -> solvers -> cases).
 """
 
-from cases.env import FixtureEnv, make_env
-from cases.errors import BudgetExhausted, CaseError, FixbenchError, NumericalError
-from cases.materials import MATERIALS, Material
-from cases.problem import Deformation, Evaluator, Problem, load_problem
-from cases.spec import CaseSpec, case_names, load_case_spec
+from fixbench.cases.env import FixtureEnv, make_env
+from fixbench.cases.errors import BudgetExhausted, CaseError, FixbenchError, NumericalError
+from fixbench.cases.materials import MATERIALS, Material
+from fixbench.cases.problem import Deformation, Evaluator, Problem, load_problem
+from fixbench.cases.spec import CaseSpec, case_names, load_case_spec
 
 __all__ = [
     "BudgetExhausted", "CaseError", "CaseSpec", "Deformation", "Evaluator", "FixbenchError",

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from cases.errors import CaseError
-from cases.spec import CaseSpec, case_names, load_case_spec
+from fixbench.cases.errors import CaseError
+from fixbench.cases.spec import CaseSpec, case_names, load_case_spec
 
 
 def flexural_rigidity(spec: CaseSpec) -> float:
@@ -143,7 +143,7 @@ def probe_value(spec: CaseSpec, model=None) -> float:
 
     Signs are the code's: w positive along +z (a positive pressure pushes along +z).
     """
-    from cases.fem import PlateModel  # heavy import only when a model is solved
+    from fixbench.cases.fem import PlateModel  # heavy import only when a model is solved
 
     v = spec.validation
     model = model if model is not None else PlateModel(spec)
@@ -165,7 +165,7 @@ def validate_spec(spec: CaseSpec) -> dict:
     """One validation row for a parsed case (see :func:`validate`)."""
     if spec.validation is None:
         raise ValueError(f"{spec.source}: the case has no [validation] table")
-    from cases.fem import PlateModel
+    from fixbench.cases.fem import PlateModel
 
     model = PlateModel(spec)
     value = probe_value(spec, model)

@@ -2,12 +2,12 @@
 
 Building the deformation oracle of a full part means one sparse back-solve per compliance column
 (the wing panel: 9,999 columns, 20-70 s) and every process that builds the problem pays it again:
-each matrix worker, each ``fixbench solve``. :meth:`cases.oracle.Oracle.prepare` computes every
+each matrix worker, each ``fixbench solve``. :meth:`fixbench.cases.oracle.Oracle.prepare` computes every
 column once and stores the result here; a later process with the same model opens the files
 memory-mapped (read-only, shared through the OS page cache) in about a second.
 
 Key: a content hash of everything the data depends on: the case's model content (part, mesh,
-material, supports, fixture candidates, measurement points, loads: :meth:`cases.problem.Problem._key`),
+material, supports, fixture candidates, measurement points, loads: :meth:`fixbench.cases.problem.Problem._key`),
 the source of the code that computes it (``cases/fem.py``, ``oracle.py``, ``geometry.py``,
 ``spec.py``, ``units.py``) and the versions of numpy, scipy, scikit-fem and triangle. Any change
 gives a new key; an entry nobody uses any more is evicted when the cache outgrows its size limit.

@@ -19,7 +19,7 @@ a team, REFERENCE section 5), on the counted oracle:
 >>> env.samples
 1
 
-A step beyond the evaluator's budget raises :class:`cases.errors.BudgetExhausted` and spends nothing.
+A step beyond the evaluator's budget raises :class:`fixbench.cases.errors.BudgetExhausted` and spends nothing.
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from cases.errors import CaseError
-from cases.problem import Evaluator, Problem, load_problem
-from cases.spec import load_case_spec
+from fixbench.cases.errors import CaseError
+from fixbench.cases.problem import Evaluator, Problem, load_problem
+from fixbench.cases.spec import load_case_spec
 
 REWARDS = ("gaussian", "bell")
 

@@ -27,9 +27,9 @@ from scipy.spatial import cKDTree
 from skfem import Basis, BilinearForm, ElementTriMorley, ElementTriP2, ElementVector, LinearForm
 from skfem.helpers import dd, ddot, sym_grad, trace
 
-from cases.errors import CaseError, NumericalError
-from cases.geometry import inward, make_mesh, measurement_points
-from cases.spec import FIELD_OF, CaseSpec, Load, Task
+from fixbench.cases.errors import CaseError, NumericalError
+from fixbench.cases.geometry import inward, make_mesh, measurement_points
+from fixbench.cases.spec import FIELD_OF, CaseSpec, Load, Task
 
 FIELDS = ("bending", "membrane")
 #: components of each field, in the order they are stored

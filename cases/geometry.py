@@ -17,7 +17,7 @@ import triangle
 from scipy.spatial import cKDTree
 from skfem import MeshTri
 
-from cases.errors import CaseError
+from fixbench.cases.errors import CaseError
 
 
 def build_polygon(shapes, reader) -> shapely.Polygon:

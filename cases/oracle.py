@@ -5,20 +5,20 @@ REFERENCE section 6. For each field, with the base supports' stiffness K factore
 - a fixture candidate j contributes constraint rows B_j (its pad's mean of each held component);
 - its *compliance columns* G_j = K^-1 B_j^T are one back-solve each and are computed lazily, the
   first time a layout uses candidate j, or all at once by :meth:`Oracle.prepare` (set-up before a
-  run, stored in and later memory-mapped from the disk cache of :mod:`cases.cache`); from them we
+  run, stored in and later memory-mapped from the disk cache of :mod:`fixbench.cases.cache`); from them we
   keep C_j = B G_j (the coupling of every candidate row to j's rows) and H_j = P G_j (j's
   influence on the measurement points P);
 - each task's unconstrained response u0 = K^-1 f is solved once, with d0 = B u0 and P u0.
 
 A layout S (rows R) then costs a |R| x |R| solve: lambda = C_RR^-1 d0_R and
 u(P) = P u0 - H_R^T lambda. This equals the direct constrained solve of the same model to
-round-off (tested against :meth:`cases.fem.PlateModel.solve_direct`).
+round-off (tested against :meth:`fixbench.cases.fem.PlateModel.solve_direct`).
 
 What is stored, and why (memory): C and H are float64 (the oracle must match a direct solve to
 1e-9) and only rows of candidates that have been used are ever touched, so memory grows with the
 candidates a planner explores: for the 3,333-candidate wing panel with all of them used, C is
 (6,666^2 + 3,333^2) x 8 B = 0.44 GB and H 0.1 GB. Deformation is measured at a fixed set of
-physical points (:func:`cases.geometry.measurement_points`), not at every node.
+physical points (:func:`fixbench.cases.geometry.measurement_points`), not at every node.
 
 The per-layout work is a numba kernel, parallel over layouts (``prange``); each layout is computed
 independently, so results do not depend on the number of threads.
@@ -29,9 +29,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from cases import cache
-from cases.errors import NumericalError
-from cases.fem import COMPONENTS, PlateModel
+from fixbench.cases import cache
+from fixbench.cases.errors import NumericalError
+from fixbench.cases.fem import COMPONENTS, PlateModel
 
 #: compliance columns are computed this many at a time: the dense right-hand sides, solutions and
 #: refinement residuals are (DOFs x CHUNK) each. Measured on bus_panel_small (33,558 membrane DOFs):
@@ -47,7 +47,7 @@ class FieldOracle:
     """Green's-function data of one field (bending or membrane) of one model.
 
     ``saved``: the complete data (C, H, d0, m0) of an earlier build, e.g. memory-mapped from the
-    disk cache (:mod:`cases.cache`); then nothing is factorised or solved here.
+    disk cache (:mod:`fixbench.cases.cache`); then nothing is factorised or solved here.
     """
 
     def __init__(self, model: PlateModel, field: str, candidates: np.ndarray,
@@ -107,8 +107,8 @@ class FieldOracle:
 class Oracle:
     """Batched, exact evaluation of fixture layouts for every task of a model.
 
-    Not counted: planners reach it through :class:`cases.problem.Evaluator`, which charges samples.
-    ``cache_key``: where the complete data lives in the disk cache (:mod:`cases.cache`); opened from
+    Not counted: planners reach it through :class:`fixbench.cases.problem.Evaluator`, which charges samples.
+    ``cache_key``: where the complete data lives in the disk cache (:mod:`fixbench.cases.cache`); opened from
     there when present, written there by :meth:`prepare`.
     """
 
@@ -144,7 +144,7 @@ class Oracle:
         """Every candidate's compliance columns, from the disk cache or computed and stored there.
 
         Set-up, not search: it costs no samples (planners still pay for what they read through the
-        :class:`~cases.problem.Evaluator`). Returns False, leaving the oracle lazy, when the complete
+        :class:`~fixbench.cases.problem.Evaluator`). Returns False, leaving the oracle lazy, when the complete
         data would exceed ``max_bytes`` (the columns are then computed as layouts first use them).
         """
         if self.complete:

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cases import cache, rewards
-from cases.errors import BudgetExhausted, CaseError, HeldOutTask
-from cases.fem import PlateModel
-from cases.oracle import Oracle
-from cases.spec import CaseSpec, load_case_spec
+from fixbench.cases import cache, rewards
+from fixbench.cases.errors import BudgetExhausted, CaseError, HeldOutTask
+from fixbench.cases.fem import PlateModel
+from fixbench.cases.oracle import Oracle
+from fixbench.cases.spec import CaseSpec, load_case_spec
 
 #: models and oracles are cached per spec content in a process; only the most recently used few
 #: are kept (a benchmark worker moves from problem to problem; memory must not grow with them)
@@ -169,7 +169,7 @@ class Evaluator:
 
     ``tasks`` restricts the door to some tasks (the held-out track: a planner trains on these and
     must act on the others without a sample); asking about any other task raises
-    :class:`~cases.errors.HeldOutTask`.
+    :class:`~fixbench.cases.errors.HeldOutTask`.
     """
 
     def __init__(self, problem: Problem, budget: int | None = None, tasks=None):

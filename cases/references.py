@@ -2,7 +2,7 @@
 
 Where ``exact`` cannot run (the full parts: millions of layouts per agent set), regret needs a
 reference that no planner beats. It is found offline by a search portfolio (``fixbench references
-build``, see :mod:`bench.references`), which is not a planner of the benchmark and is never
+build``, see :mod:`fixbench.bench.references`), which is not a planner of the benchmark and is never
 counted, and it is shipped here as versioned data: one JSON file per (case, material, agents) in
 ``cases/catalog/references/``.
 
@@ -29,8 +29,8 @@ import os
 import tempfile
 from pathlib import Path
 
-from cases.errors import CaseError
-from cases.spec import read_toml, resolve_case
+from fixbench.cases.errors import CaseError
+from fixbench.cases.spec import read_toml, resolve_case
 
 FORMAT = 1
 REFERENCE_DIR = Path(__file__).parent / "catalog" / "references"

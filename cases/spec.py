@@ -3,7 +3,7 @@
 A case describes one part and its fixture problem: geometry, mesh density, material, base supports,
 fixture candidates, agents, tasks (load cases) and reward settings. The format is documented in
 README ("Case files"); :func:`load_case_spec` is the only reader. Every problem found in a file is a
-one-line :class:`~cases.errors.CaseError` naming file, key and problem.
+one-line :class:`~fixbench.cases.errors.CaseError` naming file, key and problem.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from cases.errors import CaseError
-from cases.geometry import build_polygon
-from cases.materials import MATERIALS, Material
-from cases.units import Reader
+from fixbench.cases.errors import CaseError
+from fixbench.cases.geometry import build_polygon
+from fixbench.cases.materials import MATERIALS, Material
+from fixbench.cases.units import Reader
 
 CATALOG = Path(__file__).parent / "catalog"
 DOF_NAMES = ("ux", "uy", "w", "rot")

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from cases.errors import CaseError
+from fixbench.cases.errors import CaseError
 
 #: dimension -> {unit suffix: factor to SI}
 UNITS: dict[str, dict[str, float]] = {

@@ -26,8 +26,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cases.errors import CaseError, FixbenchError
-from cases.problem import Deformation, Evaluator, Problem
+from fixbench.cases.errors import CaseError, FixbenchError
+from fixbench.cases.problem import Deformation, Evaluator, Problem
 
 MODES = ("per-task", "shared")
 
@@ -185,8 +185,8 @@ class Planner(ABC):
         """Plan, check and score. ``train_tasks`` (held-out track, per-task mode): the planner may
         evaluate only these tasks and acts on the others with zero samples; a layout it leaves at -1
         on a held-out task becomes the best layout of the nearest training task
-        (:func:`solvers.transfer.fill_held_out`), and the objective is taken over the held-out tasks."""
-        from solvers.transfer import fill_held_out
+        (:func:`fixbench.solvers.transfer.fill_held_out`), and the objective is taken over the held-out tasks."""
+        from fixbench.solvers.transfer import fill_held_out
 
         if mode not in self.modes:
             raise PlannerError(f"planner '{self.name}' does not support mode '{mode}' "

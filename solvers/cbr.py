@@ -41,7 +41,7 @@ farthest from every pad placed so far (spread); with fewer, the worst-matched po
 
 **Polish** (counted, ``polish_samples`` per task, fewer if the budget is smaller): evaluate the k
 distinct adaptations, then coordinate descent from the best over each agent's ``pool`` candidates
-nearest to its pad (:func:`solvers.qp.coordinate_descent`). ``polish_samples=0`` spends no sample
+nearest to its pad (:func:`fixbench.solvers.qp.coordinate_descent`). ``polish_samples=0`` spends no sample
 at all: the nearest case's adaptation is returned unevaluated. Shared mode pools the neighbours of
 every task, ordered by distance, and judges layouts on every task (n_tasks samples each).
 """
@@ -58,10 +58,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from cases.problem import Problem, load_problem
-from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
-from solvers.qp import coordinate_descent
-from solvers.registry import available, get, register
+from fixbench.cases.problem import Problem, load_problem
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from fixbench.solvers.qp import coordinate_descent
+from fixbench.solvers.registry import available, get, register
 
 TASK_DIMS = 4
 _MEMORY: dict[tuple, dict] = {}  # the in-memory library of this process (one bootstrap setting)
@@ -210,7 +210,7 @@ def load_library(path: str | Path) -> dict:
     path = Path(path).expanduser()
     if not path.is_file():
         raise PlannerError(f"planner 'cbr': no case library at {path} (build one with "
-                           "solvers.cbr.build_library, or set library=PATH)")
+                           "fixbench.solvers.cbr.build_library, or set library=PATH)")
     try:
         library = json.loads(path.read_text())
     except json.JSONDecodeError as exc:

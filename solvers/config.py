@@ -5,7 +5,7 @@ from __future__ import annotations
 import typing
 from dataclasses import fields
 
-from solvers.base import PlannerConfig, PlannerError
+from fixbench.solvers.base import PlannerConfig, PlannerError
 
 
 def parse_value(text: str, kind: type):

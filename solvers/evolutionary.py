@@ -21,7 +21,7 @@ Encodings:
   neighbours in the search, which is what the deformation field is smooth in.
 
 Fitness: by default the *soft max* of |u|, the power mean over the measurement points with
-``soft_power`` (same solve, no extra sample; why: see :mod:`solvers.greedy`), the max itself with
+``soft_power`` (same solve, no extra sample; why: see :mod:`fixbench.solvers.greedy`), the max itself with
 ``soft_power = 0``. What is returned and scored is still the layout with the lowest true max.
 Measured at 2 % of the joint space (3 seeds): on fan_small the max as fitness left GA +6.7 % and
 PSO +35 % above the optimum, the soft max (p = 4) +0.4 % and +0.1 %.
@@ -40,12 +40,12 @@ reaches the allowance and the run ends. So the samples spent never exceed the bu
 allowance shrinks the population to ``allowance // min_generations`` (2 at least) so that a run
 still evolves; below 2 layouts a run is a documented best effort: the first (random) population is
 evaluated only as far as it fits, a uniform random sample. A budget with less than one layout per
-task (per task, or for the shared layout) raises :class:`~solvers.base.PlannerError`. A GA that
+task (per task, or for the shared layout) raises :class:`~fixbench.solvers.base.PlannerError`. A GA that
 can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
 
 Transfer (``transfer`` k > 0, per-task mode): tasks are solved in order, and the first population
 of each task holds the best layouts of the k already-solved tasks nearest by task features
-(:mod:`solvers.transfer`), encoded, beside random individuals; restarts start fresh.
+(:mod:`fixbench.solvers.transfer`), encoded, beside random individuals; restarts start fresh.
 
 Per-task mode returns ``ev.best_layout``, the best layout ever evaluated on each task (not the
 final population); shared mode returns ``ev.shared_layout``. ``info`` has ``generations``,
@@ -77,10 +77,10 @@ from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.robust import RobustTermination
 from scipy.spatial import cKDTree
 
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
-from solvers.registry import register
-from solvers.transfer import warm_layouts
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
+from fixbench.solvers.registry import register
+from fixbench.solvers.transfer import warm_layouts
 
 
 class _LayoutProblem(PymooProblem):

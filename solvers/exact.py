@@ -43,9 +43,9 @@ import scipy.optimize
 import scipy.sparse as sp
 from tqdm import tqdm
 
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
-from solvers.registry import register
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
+from fixbench.solvers.registry import register
 
 #: measured components of each field, in the order of the field's measurement rows
 _COMPONENTS = {"bending": ("w",), "membrane": ("ux", "uy")}

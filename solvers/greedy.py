@@ -22,7 +22,7 @@ descends on the max itself.
 
 Transfer (``transfer`` k > 0, per-task mode): tasks are solved in order, and the first descent of
 each task starts from the best of the best layouts of the k already-solved tasks nearest by task
-features (:mod:`solvers.transfer`; each costs its one sample) instead of a random layout: the
+features (:mod:`fixbench.solvers.transfer`; each costs its one sample) instead of a random layout: the
 chance the learners have of carrying what they found from one drilling position to the next.
 
 Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
@@ -51,10 +51,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
-from solvers.registry import register
-from solvers.transfer import warm_layouts
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.registry import register
+from fixbench.solvers.transfer import warm_layouts
 
 
 @dataclass(frozen=True)

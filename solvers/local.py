@@ -12,12 +12,12 @@ descent goes on from there (iterated local search; each kick starts from the bes
 far). Layouts already evaluated on the task are never paid for twice.
 
 Fitness: the soft max of |u| (power mean over the measurement points, ``soft_power``; why: see
-:mod:`solvers.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is
+:mod:`fixbench.solvers.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is
 the one with the lowest *true* max evaluated on it.
 
 Start: with ``transfer`` k > 0 (per-task mode), tasks are solved in order and each starts from the
 best of the best layouts of the k already-solved tasks nearest by task features
-(:mod:`solvers.transfer`): on a drilling job, the last drilling positions' layouts. Otherwise, or
+(:mod:`fixbench.solvers.transfer`): on a drilling job, the last drilling positions' layouts. Otherwise, or
 for the first task, the best of ``starts`` random layouts.
 
 Budget: per-task mode splits it equally over the tasks (``split_budget``), shared mode judges every
@@ -33,10 +33,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
-from solvers.registry import register
-from solvers.transfer import warm_layouts
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.registry import register
+from fixbench.solvers.transfer import warm_layouts
 
 
 @dataclass(frozen=True)

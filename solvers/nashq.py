@@ -5,7 +5,7 @@ person-by-person equilibrium, the training loop on the PettingZoo env, the greed
 
 The game (REFERENCE section 5): each step shows the agents one task (its feature vector); each agent
 picks one candidate of its own set; the layout is evaluated once on the counted oracle (one sample
-per step, through :class:`cases.env.FixtureEnv`) and every agent gets the same reward. One episode is
+per step, through :class:`fixbench.cases.env.FixtureEnv`) and every agent gets the same reward. One episode is
 one pass over the training tasks. Defaults equal the seed's Table I: 100 episodes, epsilon
 0.05 + 0.85 exp(-steps / 3500) over the whole run, one-step bandit target
 (1 - alpha) Q_target(s, a) + alpha r with alpha = 0.8 (no bootstrap), AdamW lr 1e-4 amsgrad,
@@ -31,7 +31,7 @@ if the budget is smaller, for as many full episodes as fit (best effort; ``info[
 if not even one episode fits, :class:`PlannerError`. The returned layouts are the greedy policy's
 (epsilon = 0, no samples) for every task, training tasks and held-out tasks alike.
 
-Speed (``python -m bench.marl speed``; times per phase in ``info``): the N networks are one batched
+Speed (``python -m fixbench.bench.marl speed``; times per phase in ``info``): the N networks are one batched
 module with all weights in one flat vector; the update computes only the chosen actions' outputs,
 back-propagates by hand into a persistent gradient buffer (tested against autograd) and runs clip +
 AdamW + soft target update as one fused numba pass (tested against torch's AdamW); best response is
@@ -55,10 +55,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cases.env import FixtureEnv
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
-from solvers.registry import register
+from fixbench.cases.env import FixtureEnv
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from fixbench.solvers.registry import register
 
 
 # ---------------------------------------------------------------------------------------------

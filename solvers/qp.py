@@ -11,7 +11,7 @@ What the planner reads, and what it pays (through the counted evaluator only):
   per field and task.
 
 Formulation. For one field, with constraint forces lambda at every candidate row (C = B K^-1 B^T,
-H = P K^-1 B^T, d0 = B u0, m0 = P u0 as in :mod:`cases.oracle`), a layout S's true reactions are
+H = P K^-1 B^T, d0 = B u0, m0 = P u0 as in :mod:`fixbench.cases.oracle`), a layout S's true reactions are
 the minimiser of the complementary energy ``1/2 lambda^T C lambda - d0^T lambda`` over lambda
 supported on S's rows (its value, ``-1/2 d0_S^T C_SS^-1 d0_S``, is minus half the drop in load
 work: the classic fixture-stiffness objective), and its measured field is ``m0 - H^T lambda``.
@@ -60,10 +60,10 @@ import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
 
-from cases.errors import BudgetExhausted, CaseError
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
-from solvers.registry import register
+from fixbench.cases.errors import BudgetExhausted, CaseError
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
+from fixbench.solvers.registry import register
 
 FIELDS = ("bending", "membrane")
 

@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cases.problem import Problem
-from solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
-from solvers.registry import register
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.registry import register
 
 
 @dataclass(frozen=True)

@@ -14,14 +14,15 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 
-from solvers.base import Planner, PlannerError
+from fixbench.solvers.base import Planner, PlannerError
 
 ENTRY_POINT_GROUP = "fixbench.planners"
 #: built-in planner name -> the module that registers it when imported
-BUILTIN = {"random": "solvers.random_search", "exact": "solvers.exact", "greedy": "solvers.greedy",
-           "local": "solvers.local",
-           "ga": "solvers.evolutionary", "pso": "solvers.evolutionary", "qp": "solvers.qp",
-           "cbr": "solvers.cbr", "nashq": "solvers.nashq", "iql": "solvers.nashq"}
+BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solvers.exact",
+           "greedy": "fixbench.solvers.greedy", "local": "fixbench.solvers.local",
+           "ga": "fixbench.solvers.evolutionary", "pso": "fixbench.solvers.evolutionary",
+           "qp": "fixbench.solvers.qp", "cbr": "fixbench.solvers.cbr",
+           "nashq": "fixbench.solvers.nashq", "iql": "fixbench.solvers.nashq"}
 _REGISTRY: dict[str, type[Planner]] = {}
 
 

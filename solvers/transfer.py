@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cases.problem import Problem
+from fixbench.cases.problem import Problem
 
 
 def scaled_features(problem: Problem) -> np.ndarray:

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from bench.cli import main
+from fixbench.bench.cli import main
 
 # (id, edits to the valid plate, text the message must contain: the key and the problem)
 BAD_FILES = [
@@ -105,7 +105,7 @@ def test_bad_input_writes_nothing(plate_toml, tmp_path, capsys):
 def test_console_script_exit_code(plate_toml):
     """The installed entry point, in a fresh process: exit 2, one line, no traceback."""
     path = plate_toml(("thickness_mm = 5", "thickness_mm = -5"))
-    proc = subprocess.run([sys.executable, "-m", "bench.cli", "show", path], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "fixbench", "show", path], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert "geometry.thickness_mm: must be positive" in proc.stderr
@@ -137,7 +137,7 @@ def test_plugin_that_raises_on_import(tmp_path):
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-plugin\nVersion: 1.0\n")
     (dist / "entry_points.txt").write_text("[fixbench.planners]\nbroken = broken_plugin:Broken\n")
-    proc = subprocess.run([sys.executable, "-m", "bench.cli", "solvers"], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "fixbench", "solvers"], capture_output=True, text=True,
                           env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"})
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
@@ -163,7 +163,7 @@ def test_a_plugin_taking_a_builtin_name_is_refused_by_every_command(tmp_path, co
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: shadow-plugin\nVersion: 1.0\n")
     (dist / "entry_points.txt").write_text("[fixbench.planners]\ngreedy = shadow_plugin:Greedy\n")
-    proc = subprocess.run([sys.executable, "-m", "bench.cli", *command], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "fixbench", *command], capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": str(tmp_path)})
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from bench.cli import main
-from cases import cache, problem
-from cases.problem import load_problem
+from fixbench.bench.cli import main
+from fixbench.cases import cache, problem
+from fixbench.cases.problem import load_problem
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases import case_names, load_problem
+from fixbench.cases import case_names, load_problem
 
 PARTS = ["wing_panel", "wing_spar", "bus_panel", "fan"]
 

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from cases import load_problem
-from cases.problem import Problem
-from cases.spec import load_case_spec
-from solvers.base import PlannerError
-from solvers.cbr import CaseBasedReasoning, build_library
-from solvers.registry import get
+from fixbench.cases import load_problem
+from fixbench.cases.problem import Problem
+from fixbench.cases.spec import load_case_spec
+from fixbench.solvers.base import PlannerError
+from fixbench.solvers.cbr import CaseBasedReasoning, build_library
+from fixbench.solvers.registry import get
 
 BUILD_BUDGET = 100  # samples per task when building the library (and for the reference solves)
 

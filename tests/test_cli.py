@@ -10,7 +10,7 @@ from pathlib import Path
 import meshio
 import pytest
 
-from bench.cli import cli, main
+from fixbench.bench.cli import cli, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,10 +81,10 @@ def test_example_plugin_installs_and_runs(tmp_path):
                     "--target", str(target), str(ROOT / "examples" / "fixbench-plugin-example")],
                    check=True, capture_output=True)
     env = {"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"}
-    listed = subprocess.run([sys.executable, "-m", "bench.cli", "solvers"], capture_output=True,
+    listed = subprocess.run([sys.executable, "-m", "fixbench", "solvers"], capture_output=True,
                             text=True, env=env, cwd=ROOT)
     assert "near-load" in listed.stdout, listed.stderr
-    proc = subprocess.run([sys.executable, "-m", "bench.cli", "solve", "fan_small", "--planner", "near-load",
+    proc = subprocess.run([sys.executable, "-m", "fixbench", "solve", "fan_small", "--planner", "near-load",
                            "--set", "offset_mm=20", "--json"], capture_output=True, text=True, env=env,
                           cwd=ROOT)
     assert proc.returncode == 0, proc.stderr

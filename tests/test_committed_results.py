@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.matrix import task_subset
-from bench.report import load_references
-from bench.store import load_results
-from cases.references import load_reference
+from fixbench.bench.matrix import task_subset
+from fixbench.bench.report import load_references
+from fixbench.bench.store import load_results
+from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"
 RUNS = ["reference", "paper"]

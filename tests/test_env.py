@@ -7,8 +7,8 @@ import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from cases import make_env
-from cases.errors import BudgetExhausted, CaseError
+from fixbench.cases import make_env
+from fixbench.cases.errors import BudgetExhausted, CaseError
 
 TASKS = [0, 1, 2]
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases import load_case_spec, load_problem
-from cases.problem import Problem
-from solvers.base import PlannerError
-from solvers.evolutionary import GeneticPlanner, SwarmPlanner
-from solvers.random_search import RandomSearch
+from fixbench.cases import load_case_spec, load_problem
+from fixbench.cases.problem import Problem
+from fixbench.solvers.base import PlannerError
+from fixbench.solvers.evolutionary import GeneticPlanner, SwarmPlanner
+from fixbench.solvers.random_search import RandomSearch
 
 PLANNERS = {"ga": GeneticPlanner, "pso": SwarmPlanner}
 

@@ -13,9 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.cli import main
-from bench.runner import run_matrix
-from bench.store import CHECKSUM, Store, load_results
+from fixbench.bench.cli import main
+from fixbench.bench.runner import run_matrix
+from fixbench.bench.store import CHECKSUM, Store, load_results
 
 TINY = """
 name = "tiny"
@@ -215,7 +215,7 @@ def test_ctrl_c_stops_quietly_keeps_the_rows_and_says_how_to_resume(tmp_path):
     m = tmp_path / "m.toml"
     m.write_text(TINY.replace("seeds = [0, 1]", "seeds = [0, 1, 2, 3, 4, 5, 6, 7]"))
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "run", str(m), "--out", str(out), "--workers", "1"],
+    proc = subprocess.Popen([sys.executable, "-m", "fixbench", "run", str(m), "--out", str(out), "--workers", "1"],
                             start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and len(list((out / "rows").glob("*.json"))) < 2:
@@ -254,13 +254,13 @@ def _mutate(text: str, data) -> str:
 
 
 def _load_matrix(path: Path) -> None:
-    from bench.matrix import load_matrix
+    from fixbench.bench.matrix import load_matrix
 
     load_matrix(path).cells()
 
 
 def _load_case(path: Path) -> None:
-    from cases.spec import load_case_spec
+    from fixbench.cases.spec import load_case_spec
 
     load_case_spec(str(path))
 
@@ -270,7 +270,7 @@ def _load_case(path: Path) -> None:
 @given(data=st.data())
 def test_random_malformed_files_never_give_a_traceback(tmp_path, template, load, data):
     """Random malformed matrix and case files: a one-line FixbenchError or success, nothing else."""
-    from cases.errors import FixbenchError
+    from fixbench.cases.errors import FixbenchError
     from tests.conftest import PLATE
 
     p = tmp_path / "file.toml"

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases import CaseError, load_case_spec, load_problem
-from cases.fem import PlateModel, disc_cloud
-from cases.units import Reader
+from fixbench.cases import CaseError, load_case_spec, load_problem
+from fixbench.cases.fem import PlateModel, disc_cloud
+from fixbench.cases.units import Reader
 
 
 def test_disc_cloud_is_a_mean():

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases import load_case_spec
-from cases.problem import Problem
-from solvers import PlannerError, get
+from fixbench.cases import load_case_spec
+from fixbench.cases.problem import Problem
+from fixbench.solvers import PlannerError, get
 
 
 @pytest.fixture(scope="module")

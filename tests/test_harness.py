@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from bench.cli import main
-from bench.matrix import load_matrix
-from bench.runner import run_matrix
-from bench.store import ROW_SCHEMA, load_results
+from fixbench.bench.cli import main
+from fixbench.bench.matrix import load_matrix
+from fixbench.bench.runner import run_matrix
+from fixbench.bench.store import ROW_SCHEMA, load_results
 
 TINY = """
 name = "tiny"
@@ -30,7 +30,7 @@ agents = 2
 PLANNERS_THAT_MISBEHAVE = '''
 import time
 from dataclasses import dataclass
-from solvers import Planner, PlannerConfig
+from fixbench.solvers import Planner, PlannerConfig
 
 class Boom(Planner):
     name = "boom"
@@ -104,7 +104,7 @@ def test_kill_minus_nine_then_resume(tmp_path):
     """Kill the driver mid-run; the rerun completes and every cell is there exactly once."""
     text = TINY.replace("seeds = [0, 1]", "seeds = [0, 1, 2, 3, 4, 5]")
     path, out = write(tmp_path, text), tmp_path / "run"
-    cmd = [sys.executable, "-m", "bench.cli", "run", str(path), "--out", str(out), "--workers", "1"]
+    cmd = [sys.executable, "-m", "fixbench", "run", str(path), "--out", str(out), "--workers", "1"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     rows = out / "rows"
     deadline = time.monotonic() + 300

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from cases.problem import Problem, load_problem
-from solvers.base import PlannerError
-from solvers.nashq import NashQConfig, StackedQ, Update, _Learner, _q_row, load_weights
-from solvers.registry import get
+from fixbench.cases.problem import Problem, load_problem
+from fixbench.solvers.base import PlannerError
+from fixbench.solvers.nashq import NashQConfig, StackedQ, Update, _Learner, _q_row, load_weights
+from fixbench.solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
 
@@ -139,7 +139,7 @@ def test_bad_device(problem):
 
 
 def test_figure4_panels(problem, tmp_path):
-    from bench.marl import figure4
+    from fixbench.bench.marl import figure4
 
     r = get("iql")(**SMALL).solve(problem, None, seed=0)
     paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
@@ -203,8 +203,8 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
 
 
 def test_heldout_benchmark_rows():
-    """bench.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
-    from bench.marl import heldout
+    """fixbench.bench.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
+    from fixbench.bench.marl import heldout
 
     rows = heldout("wing_spar_small", "nashq", fraction=0.4, episodes=2, per_task=(1, 3), baselines=("random",),
                    hidden=16)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cases import BudgetExhausted, CaseError, load_problem
+from fixbench.cases import BudgetExhausted, CaseError, load_problem
 
 PARTS = ["wing_panel", "wing_spar", "bus_panel", "fan"]
 FIELDS = ("max_ux", "max_uy", "max_w", "max_u", "max_uxy")
@@ -119,7 +119,7 @@ def test_deterministic():
 
 def test_cache_size_bounds_the_models_kept():
     """A benchmark worker keeps one model: building the next one evicts the last one first."""
-    import cases.problem as cp
+    import fixbench.cases.problem as cp
 
     saved = cp.CACHE_SIZE
     try:

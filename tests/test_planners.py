@@ -13,10 +13,10 @@ import sys
 import numpy as np
 import pytest
 
-from cases import FixbenchError, load_case_spec
-from cases.problem import Problem
-from solvers import PlannerError, available, get, register
-from solvers.random_search import RandomSearch
+from fixbench.cases import FixbenchError, load_case_spec
+from fixbench.cases.problem import Problem
+from fixbench.solvers import PlannerError, available, get, register
+from fixbench.solvers.random_search import RandomSearch
 
 BUDGET = 4_000  # covers exact enumeration of the problem below (42 x 42 layouts x 2 tasks)
 
@@ -74,18 +74,18 @@ def test_registry_refuses_a_taken_name():
 
 def test_registry_refuses_a_builtin_name_before_the_builtin_is_imported():
     """Built-ins are imported lazily; a plugin must not take one's name in the meantime."""
-    code = ("from solvers.base import Planner\nfrom solvers.registry import register\n"
+    code = ("from fixbench.solvers.base import Planner\nfrom fixbench.solvers.registry import register\n"
             "class Impostor(Planner):\n    name = 'nashq'\n"
             "try:\n    register(Impostor)\nexcept Exception as e:\n    print(e)\n"
             "import sys\nprint('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert "'nashq' is taken by the built-in planner in solvers.nashq" in out
+    assert "'nashq' is taken by the built-in planner in fixbench.solvers.nashq" in out
     assert out.strip().endswith("False")
 
 
 def test_checking_a_matrix_of_builtin_names_imports_no_planner():
     """The benchmark driver stays small: it checks names without importing PyTorch, cvxpy, pymoo."""
-    code = ("import sys\nfrom bench.matrix import load_matrix\n"
+    code = ("import sys\nfrom fixbench.bench.matrix import load_matrix\n"
             "m = load_matrix('bench/matrices/default.toml')\n"
             "print(len(m.planners), sorted(k for k in ('torch', 'cvxpy', 'pymoo') if k in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases import load_problem
-from solvers.base import PlannerError
-from solvers.qp import QPPlanner
-from solvers.random_search import RandomSearch
+from fixbench.cases import load_problem
+from fixbench.solvers.base import PlannerError
+from fixbench.solvers.qp import QPPlanner
+from fixbench.solvers.random_search import RandomSearch
 
 READS = 3 * 84  # fan_small: 84 candidates, bending (1 row) + membrane (2 rows)
 FREE = 2 * 6  # one unconstrained response per field and task

@@ -11,14 +11,14 @@ import json
 import numpy as np
 import pytest
 
-import cases.references as refs
-from bench.cells import compute_reference
-from bench.references import Portfolio, build, rescore, update
-from bench.store import Store, write_json_atomic
-from cases.errors import CaseError
-from cases.problem import Problem
-from cases.spec import load_case_spec
-from solvers import PlannerError, get
+import fixbench.cases.references as refs
+from fixbench.bench.cells import compute_reference
+from fixbench.bench.references import Portfolio, build, rescore, update
+from fixbench.bench.store import Store, write_json_atomic
+from fixbench.cases.errors import CaseError
+from fixbench.cases.problem import Problem
+from fixbench.cases.spec import load_case_spec
+from fixbench.solvers import PlannerError, get
 
 TINY = Portfolio(samples_per_task=150, seeds=(0,), polish_samples=100, max_rounds=3, prove_limit=0)
 
@@ -128,7 +128,7 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
 
 
 def test_check_small_counts_tasks_at_the_optimum():
-    from bench.references import check_small
+    from fixbench.bench.references import check_small
 
     rows = check_small(cases=("fan_small",), materials=("steel",), effort=TINY, echo=lambda r: None)
     assert len(rows) == 1 and rows[0]["tasks"] == 6

@@ -15,8 +15,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.cli import main
-from bench.comparison import (
+from fixbench.bench.cli import main
+from fixbench.bench.comparison import (
     heldout_table,
     improvement_table,
     main_table,
@@ -24,7 +24,7 @@ from bench.comparison import (
     sweep_figure,
     sweep_table,
 )
-from bench.report import (
+from fixbench.bench.report import (
     anytime_figure,
     bootstrap_ci,
     ecdf_figure,
@@ -35,7 +35,7 @@ from bench.report import (
     summary_table,
     violin_figure,
 )
-from bench.store import ROW_SCHEMA, Store, load_results, write_json_atomic
+from fixbench.bench.store import ROW_SCHEMA, Store, load_results, write_json_atomic
 
 OPT = {"aluminium": [2e-5, 4e-5], "steel": [1e-5, 2e-5]}
 PLANNERS = {"random": 1.5, "greedy": 1.2, "nashq": 1.8}  # final objective / optimum
@@ -211,7 +211,7 @@ def test_bootstrap_ci():
 
 def test_real_run_and_cli(tmp_path, plate_toml, monkeypatch, capsys):
     """A tiny real matrix (a 6-candidate plate), then `fixbench report DIR`."""
-    from bench.runner import run_matrix
+    from fixbench.bench.runner import run_matrix
 
     monkeypatch.chdir(tmp_path)
     plate_toml()

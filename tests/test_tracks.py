@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.cli import main
-from bench.matrix import load_matrix
-from bench.runner import run_matrix
-from bench.store import load_results
+from fixbench.bench.cli import main
+from fixbench.bench.matrix import load_matrix
+from fixbench.bench.runner import run_matrix
+from fixbench.bench.store import load_results
 
 TRACKS = """
 name = "tracks"

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cases.errors import HeldOutTask
-from cases.problem import load_problem
-from solvers import Planner, get
-from solvers.transfer import fill_held_out, nearest_tasks
+from fixbench.cases.errors import HeldOutTask
+from fixbench.cases.problem import load_problem
+from fixbench.solvers import Planner, get
+from fixbench.solvers.transfer import fill_held_out, nearest_tasks
 
 CLOSE = """
 [case]

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from cases.analytic import (
+from fixbench.cases.analytic import (
     flexural_rigidity,
     navier_ss_rectangle,
     reference,
@@ -23,8 +23,8 @@ from cases.analytic import (
     validate_spec,
     validation_names,
 )
-from cases.errors import CaseError
-from cases.spec import load_case_spec, parse_case, read_toml, resolve_case
+from fixbench.cases.errors import CaseError
+from fixbench.cases.spec import load_case_spec, parse_case, read_toml, resolve_case
 
 CASES = ["plate_ss_uniform", "plate_ss_point", "plate_clamped_uniform", "plate_clamped_point",
          "plate_ss_rect_uniform", "membrane_strip"]

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers import Planner, PlannerConfig
+from fixbench.solvers import Planner, PlannerConfig
 
 
 @dataclass(frozen=True)
