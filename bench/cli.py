@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from fixbench import __version__
 from fixbench.cases.errors import FixbenchError
 
 
@@ -53,6 +54,7 @@ def _parse_layout(text: str) -> list[int]:
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", "-V", prog_name="fixbench", message="%(prog)s %(version)s")
 def cli() -> None:
     """fixbench: multi-robot fixture planning benchmarks on validated plate FEA."""
 
@@ -230,7 +232,8 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
               "mode=, seed=, samples_per_task= filters (comma-separated); a later run without --only "
               "completes the matrix.")
 def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
-    """Run the benchmark MATRIX (a TOML file) into OUT; rerun to resume."""
+    """Run the benchmark MATRIX (a TOML file, or the name of a shipped one: default, paper, sweep)
+    into OUT; rerun to resume."""
     from fixbench.bench.runner import run_matrix
 
     try:

@@ -136,15 +136,39 @@ def _list(r: Reader, key: str, kind, default=...) -> list:
     return values
 
 
+#: the matrices shipped with the package (``fixbench run default`` works from any directory)
+SHIPPED = Path(__file__).parent / "matrices"
+
+
+def shipped_matrices() -> list[str]:
+    """Names of the matrices shipped with fixbench (``default``, ``paper``, ``sweep``)."""
+    return sorted(p.stem for p in SHIPPED.glob("*.toml"))
+
+
+def find_matrix(path: str | Path) -> Path:
+    """The matrix file ``path`` names: an existing file, else a shipped matrix of that name
+    (``default`` or ``default.toml``). A file in the current directory wins over a shipped name."""
+    path = Path(path)
+    if path.is_file() or path.parent != Path("."):
+        return path
+    name = path.name if path.suffix == ".toml" else f"{path.name}.toml"
+    for candidate in (Path(name), SHIPPED / name):
+        if candidate.is_file():
+            return candidate
+    return path
+
+
 def load_matrix(path: str | Path) -> Matrix:
-    """Read and check a matrix file; every problem is a one-line CaseError (file, key, problem)."""
+    """Read and check a matrix file (or a shipped matrix by name, :func:`find_matrix`); every
+    problem is a one-line CaseError (file, key, problem)."""
     from fixbench.solvers.config import apply_sets
     from fixbench.solvers.registry import get, names
 
-    path = Path(path)
+    path = find_matrix(path)
     source = str(path)
     if not path.is_file():
-        raise CaseError(source, "", "no such matrix file")
+        raise CaseError(source, "", "no such matrix file (shipped matrices: "
+                        + ", ".join(shipped_matrices()) + ")")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:

@@ -17,7 +17,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from fixbench.bench.cells import base_row, reference_key
-from fixbench.bench.matrix import load_matrix
+from fixbench.bench.matrix import find_matrix, load_matrix
 from fixbench.bench.store import Store, write_text_atomic
 from fixbench.cases.errors import CaseError
 
@@ -47,6 +47,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
 
     ``progress``: a progress bar (a terminal); else, with ``plain_every`` > 0, one plain line on
     stderr at most every that many seconds (cells done, failed, elapsed, ETA: logs, CI, nohup)."""
+    matrix_path = find_matrix(matrix_path)
     matrix = load_matrix(matrix_path)  # every check happens before anything is written
     store = Store(out)
     text = Path(matrix_path).read_text(encoding="utf-8")
