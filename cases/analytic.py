@@ -1,4 +1,4 @@
-"""Analytic checks of the plate FEA (REFERENCE section 1).
+"""Analytic checks of the plate FEA (docs/plate.md).
 
 A catalog case with a ``[validation]`` table names a quantity (``w``, ``ux`` or ``uy``), a point,
 and a textbook formula ``coefficient * scale``. :func:`validate` solves each such case without

@@ -1,7 +1,7 @@
 """A PettingZoo ``ParallelEnv`` over any fixbench problem: one task per step, one answer per agent.
 
 The multi-robot fixture planning game of the reference implementation (a contextual bandit played by
-a team, REFERENCE section 5), on the counted oracle:
+a team, docs/protocol.md), on the counted oracle:
 
 - each step presents one task (a drilling position, an operating condition); every agent observes
   the task's feature vector (``float32`` ``Box``, bounds = the range of the problem's features);

@@ -1,4 +1,4 @@
-"""Flat-shell plate FEA with scikit-fem (REFERENCE section 1).
+"""Flat-shell plate FEA with scikit-fem (docs/plate.md).
 
 A flat shell in linear theory is two decoupled problems on one mesh:
 
@@ -11,7 +11,8 @@ Supports, fixtures and loads act on both through the same mesh. A field that no 
 out (its response is zero), so a purely in-plane case does not need bending supports and vice versa.
 Fixture pads and load patches are clouds of quadrature points with weights; a pad's constraint
 row is the weighted mean of the field over its disc, a patch's load vector spreads its force
-uniformly over its disc or boundary arc (REFERENCE section 1: in-plane forces and holds need area).
+uniformly over its disc or boundary arc (in-plane forces and holds need area:
+docs/plate.md#point-loads-and-patches).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Isotropic linear-elastic materials (REFERENCE section 2); a case may override any property."""
+"""Isotropic linear-elastic materials (docs/materials.md); a case may override any property."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ class Material:
     density: float
 
 
-#: The grades fixbench ships with (REFERENCE section 2).
+#: The grades fixbench ships with (docs/materials.md).
 MATERIALS: dict[str, Material] = {
     m.name: m
     for m in (

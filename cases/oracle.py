@@ -1,6 +1,6 @@
 """The fast deformation oracle: Green's functions and a small Schur solve per layout.
 
-REFERENCE section 6. For each field, with the base supports' stiffness K factored once:
+Derivation: docs/oracle.md. For each field, with the base supports' stiffness K factored once:
 
 - a fixture candidate j contributes constraint rows B_j (its pad's mean of each held component);
 - its *compliance columns* G_j = K^-1 B_j^T are one back-solve each and are computed lazily, the

@@ -1,8 +1,9 @@
-"""Reward functions of the MARL literature (REFERENCE section 5), on max deformations in metres.
+"""Reward functions of the MARL literature, on max deformations in metres.
 
-The literature's dx and dz are the maximum deformations "along x" and "along z". fixbench feeds
-dx = the maximum in-plane magnitude sqrt(ux^2 + uy^2) (equal to |ux| where the in-plane response
-runs along x; on the spar it runs along y and plain |ux| would miss it) and dz = max |w|.
+The rewards are defined in docs/protocol.md#reward-functions. The literature's dx and dz are the
+maximum deformations "along x" and "along z". fixbench feeds dx = the maximum in-plane magnitude
+sqrt(ux^2 + uy^2) (equal to |ux| where the in-plane response runs along x; on the spar it runs
+along y and plain |ux| would miss it) and dz = max |w|.
 """
 
 from __future__ import annotations

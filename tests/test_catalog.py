@@ -22,7 +22,7 @@ def test_every_catalog_case_loads():
 
 
 def test_reference_geometry():
-    """REFERENCE section 3: 3,333 wing-panel candidates, 10,000 on the spar web, 500 drillings."""
+    """docs/geometry.md: 3,333 wing-panel candidates, 10,000 on the spar web, 500 drillings."""
     wing, spar = load_problem("wing_panel"), load_problem("wing_spar")
     assert len(wing.candidates) == 3333 and wing.n_tasks == 500
     assert len(spar.candidates) == 10000 and spar.n_tasks == 500

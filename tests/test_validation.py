@@ -1,4 +1,4 @@
-"""The plate FEA against analytic references (REFERENCE section 1; cases/analytic.py).
+"""The plate FEA against analytic references (docs/plate.md; cases/analytic.py).
 
 Each validation case of the catalog must land within 1 % of its textbook value at its default mesh;
 Navier's series (exact for simply supported rectangles) must reproduce the printed coefficients and
