@@ -268,6 +268,23 @@ def report(run_dir, out, no_fields) -> None:
                + (f", {len(res['notes'])} skipped" if res["notes"] else "") + ")")
 
 
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(["iohprofiler", "marl-eval", "csv"]), required=True,
+              help="iohprofiler (IOHanalyzer's folders), marl-eval (one JSON) or csv (rows and traces).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder to write (default: RUN_DIR/export/FORMAT); an earlier export there is replaced.")
+def export(run_dir, fmt, out) -> None:
+    """Write the run in RUN_DIR in a format other tools read (IOHanalyzer, marl-eval, CSV)."""
+    from fixbench.bench.export import export_run
+
+    res = export_run(run_dir, fmt, out or run_dir / "export" / fmt)
+    counts = {k: v for k, v in res.items() if isinstance(v, int)}
+    skipped = res.get("skipped") or {}
+    click.echo(f"wrote {res['out']} ({fmt}: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in counts.items())
+               + "".join(f"; {v} cells left out ({k})" for k, v in skipped.items()) + ")")
+
+
 @cli.group()
 def references() -> None:
     """Regret references of the full parts: build them, merge better layouts from a run."""
@@ -322,23 +339,30 @@ def references_rescore(run_dir) -> None:
 
 @cli.group()
 def cache() -> None:
-    """The on-disk cache of oracle set-up data (compliance columns), shared by every process."""
+    """The on-disk cache of oracle set-up data (compliance columns): the folder $FIXBENCH_CACHE_DIR
+    names, or a run directory's DIR/oracle-cache."""
+
+
+_DIR = click.option("--dir", "path", type=click.Path(file_okay=False, path_type=Path),
+                    help="Cache folder (default: $FIXBENCH_CACHE_DIR; a run's is RUN_DIR/oracle-cache).")
 
 
 @cache.command("info")
+@_DIR
 @click.option("--json", "as_json", is_flag=True, help="Print strict JSON.")
-def cache_info(as_json: bool) -> None:
+def cache_info(path: Path | None, as_json: bool) -> None:
     """Where the cache is, its size limit, and every entry (newest use first)."""
     import time
 
     from fixbench.cases import cache as oracle_cache
 
-    base, es = oracle_cache.root(), oracle_cache.entries()
+    base = path or oracle_cache.root()
+    es = oracle_cache.entries(base)
     if as_json:
         echo_json({"root": str(base) if base else None, "max_bytes": oracle_cache.max_bytes(), "entries": es})
         return
     if base is None:
-        click.echo("cache: off (FIXBENCH_CACHE_DIR=off)")
+        click.echo("cache: off (no --dir, and FIXBENCH_CACHE_DIR is unset or off)")
         return
     total = sum(e["bytes"] for e in es)
     click.echo(f"cache: {base}  {len(es)} entries, {total / 2**20:.0f} MB of "
@@ -349,11 +373,16 @@ def cache_info(as_json: bool) -> None:
 
 
 @cache.command("clear")
-def cache_clear() -> None:
+@_DIR
+def cache_clear(path: Path | None) -> None:
     """Remove every entry (they are rebuilt when next needed)."""
     from fixbench.cases import cache as oracle_cache
 
-    click.echo(f"removed {oracle_cache.clear()} entries from {oracle_cache.root()}")
+    base = path or oracle_cache.root()
+    if base is None:
+        click.echo("cache: off (no --dir, and FIXBENCH_CACHE_DIR is unset or off); nothing removed")
+        return
+    click.echo(f"removed {oracle_cache.clear(base)} entries from {base}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -64,10 +64,12 @@ class LocalExecutor:
     of imports).
     """
 
-    def __init__(self, workers: int | None = None, timeout: float | None = None, recycle_mb: float = 1000.0):
+    def __init__(self, workers: int | None = None, timeout: float | None = None, recycle_mb: float = 1000.0,
+                 env: dict[str, str] | None = None):
         self.workers = max(1, workers or os.cpu_count() or 1)
         self.timeout = timeout
         self.recycle_mb = recycle_mb
+        self.env = dict(env or {})  # extra environment of the workers (the run's oracle cache folder)
         self.ctx = mp.get_context("spawn")
         self.slots: list[dict] = []  # kept between run() calls (references, then cells) until close()
 
@@ -81,8 +83,9 @@ class LocalExecutor:
     def _start(self):
         parent, child = self.ctx.Pipe()
         threads = max(1, (os.cpu_count() or 1) // self.workers)
-        saved = {k: os.environ.get(k) for k in THREAD_VARS}
-        os.environ.update({k: str(threads) for k in THREAD_VARS})  # read by the child's imports
+        child_env = {**{k: str(threads) for k in THREAD_VARS}, **self.env}
+        saved = {k: os.environ.get(k) for k in child_env}
+        os.environ.update(child_env)  # inherited by the spawned child, read by its imports
         try:
             proc = self.ctx.Process(target=_worker, args=(child, threads), daemon=True)
             proc.start()
@@ -161,7 +164,8 @@ class LocalExecutor:
 class RayExecutor:
     """The same jobs as Ray tasks (one CPU each) on a local Ray instance or an existing cluster."""
 
-    def __init__(self, workers: int | None = None, timeout: float | None = None, address: str | None = None):
+    def __init__(self, workers: int | None = None, timeout: float | None = None, address: str | None = None,
+                 env: dict[str, str] | None = None):
         import ray
 
         self.ray = ray
@@ -170,7 +174,8 @@ class RayExecutor:
             ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
         self.workers = workers or int(ray.cluster_resources().get("CPU", 1))
         self.timeout = timeout
-        self.remote = ray.remote(num_cpus=1, max_retries=0)(_ray_execute)
+        options = {"runtime_env": {"env_vars": dict(env)}} if env else {}
+        self.remote = ray.remote(num_cpus=1, max_retries=0, **options)(_ray_execute)
 
     def run(self, jobs: list[Job], on_result: OnResult) -> None:
         ray, queue, running = self.ray, list(jobs), {}

@@ -9,6 +9,7 @@ with its error; the matrix goes on.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -19,19 +20,30 @@ from tqdm import tqdm
 from fixbench.bench.cells import base_row, reference_key
 from fixbench.bench.matrix import find_matrix, load_matrix
 from fixbench.bench.store import Store, write_text_atomic
+from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
 
 
-def make_executor(kind: str, workers: int | None, timeout: float | None, address: str | None):
+def make_executor(kind: str, workers: int | None, timeout: float | None, address: str | None,
+                  env: dict[str, str] | None = None):
+    """The executor of ``kind``; ``env``: extra environment variables of its workers."""
     if kind == "ray":
         try:
             from fixbench.bench.executors import RayExecutor
         except ImportError:  # pragma: no cover - ray is an optional extra
             raise CaseError("--executor", "ray", "Ray is not installed (pip install 'fixbench[ray]')") from None
-        return RayExecutor(workers, timeout, address)
+        return RayExecutor(workers, timeout, address, env)
     from fixbench.bench.executors import LocalExecutor
 
-    return LocalExecutor(workers, timeout)
+    return LocalExecutor(workers, timeout, env=env)
+
+
+def worker_env(out: Path) -> dict[str, str]:
+    """The workers' oracle cache: the folder ``$FIXBENCH_CACHE_DIR`` names (``off``: none), else
+    ``OUT/oracle-cache`` inside the run directory (nothing is written outside it)."""
+    if oracle_cache.ENV in os.environ:
+        return {}
+    return {oracle_cache.ENV: str(Path(out).resolve() / "oracle-cache")}
 
 
 def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local", workers: int | None = None,
@@ -92,7 +104,7 @@ def _run_locked(matrix_path, text, store, cells, selected, executor, workers, ad
             references[key] = json.loads(path.read_text())
         else:
             ref_jobs.append(("reference", (*key4, modes)))
-    ex = make_executor(executor, workers, cell_timeout, address)
+    ex = make_executor(executor, workers, cell_timeout, address, env=worker_env(store.root))
     bar = tqdm(total=len(ref_jobs) + len(todo), disable=not progress, unit="job", desc="references")
     plain = _PlainProgress(len(todo), plain_every if not progress else 0.0)
 

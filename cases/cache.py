@@ -1,4 +1,4 @@
-"""On-disk cache of the oracle's compliance data: paid once per machine, memory-mapped by every process.
+"""On-disk cache of the oracle's compliance data: paid once, memory-mapped by every later process.
 
 Building the deformation oracle of a full part means one sparse back-solve per compliance column
 (the wing panel: 9,999 columns, 20-70 s) and every process that builds the problem pays it again:
@@ -17,10 +17,12 @@ every open; a damaged or incomplete entry is reported on stderr, removed and reb
 Entries are written into a temporary directory beside the cache and renamed into place (atomic), so
 two processes building the same entry at once cannot leave a half-written one.
 
-Where: ``$FIXBENCH_CACHE_DIR`` if set (``off`` disables the cache), else
-``$XDG_CACHE_HOME/fixbench/oracle``, else ``~/.cache/fixbench/oracle``. Size limit:
+Where: only where the user or the run says; fixbench writes nothing outside a run directory or a
+path the user names. ``$FIXBENCH_CACHE_DIR`` names the folder (``off`` or unset: no disk cache);
+``fixbench run ... --out DIR`` gives its workers ``DIR/oracle-cache`` unless ``$FIXBENCH_CACHE_DIR``
+names another (one folder shared by several runs saves their set-up and disk). Size limit:
 ``$FIXBENCH_CACHE_MAX_GB`` (default 8); least recently used entries are evicted first.
-``fixbench cache info`` lists the entries, ``fixbench cache clear`` removes them.
+``fixbench cache info [--dir D]`` lists the entries, ``fixbench cache clear [--dir D]`` removes them.
 """
 
 from __future__ import annotations
@@ -44,13 +46,14 @@ LIBRARIES = ("numpy", "scipy", "scikit-fem", "triangle")
 DEFAULT_MAX_GB = 8.0
 
 
+#: the environment variable that names the cache folder (read by every process, workers included)
+ENV = "FIXBENCH_CACHE_DIR"
+
+
 def root() -> Path | None:
-    """The cache directory, or None when the cache is off (``FIXBENCH_CACHE_DIR=off``)."""
-    env = os.environ.get("FIXBENCH_CACHE_DIR")
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "none") else Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "fixbench" / "oracle"
+    """The cache folder ``$FIXBENCH_CACHE_DIR`` names, or None (no disk cache: unset or ``off``)."""
+    env = os.environ.get(ENV, "")
+    return None if env.strip().lower() in ("", "off", "0", "none") else Path(env).expanduser()
 
 
 def max_bytes() -> float:
@@ -154,9 +157,10 @@ def store(k: str, arrays: dict[str, np.ndarray], description: str = "") -> Path 
         return None
 
 
-def entries() -> list[dict]:
-    """Every entry: key, description, bytes, created and last used (epoch seconds), newest use first."""
-    base = root()
+def entries(base: Path | None = None) -> list[dict]:
+    """Every entry of folder ``base`` (default: :func:`root`): key, description, bytes, created and
+    last used (epoch seconds), newest use first."""
+    base = base or root()
     if base is None or not base.is_dir():
         return []
     out = []
@@ -187,9 +191,10 @@ def evict(incoming: int = 0) -> int:
     return removed
 
 
-def clear() -> int:
-    """Remove every entry (and stray temporary directories); returns how many entries."""
-    base = root()
+def clear(base: Path | None = None) -> int:
+    """Remove every entry of folder ``base`` (default: :func:`root`) and stray temporary directories;
+    returns how many entries."""
+    base = base or root()
     if base is None or not base.is_dir():
         return 0
     n = 0

@@ -121,6 +121,7 @@ class Oracle:
         if saved is not None and set(saved) != {f"{f}.{k}" for f in model.active for k in ("C", "H", "d0", "m0")}:
             saved = None
         self.from_cache = saved is not None
+        self._stored = False
         self._complete = False
         self.fields = {f: FieldOracle(model, f, candidates,
                                       None if saved is None else {k: saved[f"{f}.{k}"] for k in ("C", "H", "d0", "m0")})
@@ -147,16 +148,16 @@ class Oracle:
         :class:`~fixbench.cases.problem.Evaluator`). Returns False, leaving the oracle lazy, when the complete
         data would exceed ``max_bytes`` (the columns are then computed as layouts first use them).
         """
-        if self.complete:
-            return True
-        if self.full_bytes() > max_bytes:
-            return False
-        self.ensure(np.arange(self.n_candidates), progress)
-        if self.cache_key:
+        if not self.complete:
+            if self.full_bytes() > max_bytes:
+                return False
+            self.ensure(np.arange(self.n_candidates), progress)
+        if self.cache_key and not (self.from_cache or self._stored):  # also after layouts used every column
             spec = self.model.spec
             arrays = {f"{f}.{k}": v for f, fo in self.fields.items() for k, v in fo.arrays().items()}
             what = f"{spec.name} ({spec.material.name}, {self.n_candidates} candidates, {self.n_tasks} tasks)"
             cache.store(self.cache_key, arrays, description=what)
+            self._stored = True  # tried once (a cache that cannot be written is not retried)
         return True
 
     def ensure(self, cand: np.ndarray, progress=None) -> None:

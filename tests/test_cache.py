@@ -114,3 +114,34 @@ def test_cli_cache_info_and_clear(plate_toml, cache_dir, capsys):
     assert main(["cache", "clear"]) == 0
     assert "removed 1 entries" in capsys.readouterr().out
     assert cache.entries() == []
+
+
+def test_no_disk_cache_unless_named(monkeypatch):
+    monkeypatch.delenv("FIXBENCH_CACHE_DIR", raising=False)
+    assert cache.root() is None
+    monkeypatch.setenv("FIXBENCH_CACHE_DIR", "off")
+    assert cache.root() is None
+
+
+def test_a_run_keeps_its_cache_in_its_run_directory(tmp_path, monkeypatch, capsys):
+    """Nothing is written outside the run directory: the workers' cache is OUT/oracle-cache, and
+    neither the home directory nor the working directory gains a file."""
+    from fixbench.bench.runner import run_matrix
+
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir()
+    work.mkdir()
+    monkeypatch.delenv("FIXBENCH_CACHE_DIR", raising=False)
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(home / ".cache"))
+    monkeypatch.chdir(work)
+    m = work / "m.toml"
+    m.write_text('name = "c"\ncases = ["fan_small"]\nplanners = ["random"]\nseeds = [0]\nbudget = 20\ntasks = 1\n')
+    out = tmp_path / "run"
+    summary = run_matrix(m, out, workers=1, progress=False)
+    assert summary["run"] == 1
+    (entry,) = cache.entries(out / "oracle-cache")
+    assert "fan_small" in entry["description"]
+    assert not any(home.rglob("*")) and [p.name for p in work.iterdir()] == ["m.toml"]
+    assert main(["cache", "info", "--dir", str(out / "oracle-cache"), "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["entries"]) == 1
