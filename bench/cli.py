@@ -63,25 +63,26 @@ def cli() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
 def cases(as_json: bool) -> None:
     """Table of catalog cases: part, DOFs, candidates, agents, tasks, joint-space size."""
-    import pandas as pd
+    from tabulate import tabulate
     from tqdm import tqdm
 
+    from fixbench.cases.fem import dof_count
     from fixbench.cases.problem import Problem
     from fixbench.cases.spec import case_names, load_case_spec
 
     rows = []
     for name in tqdm(case_names(), desc="meshing cases", disable=as_json or not sys.stderr.isatty()):
-        p = Problem(load_case_spec(name))
+        p = Problem(load_case_spec(name))  # candidates and agents only: nothing is assembled
         rows.append({"case": name, "part": p.spec.part, "material": p.spec.material.name,
-                     "dofs": sum(int(fs.basis.N) for fs in p.model.fields.values()),
+                     "dofs": dof_count(p.spec),
                      "candidates": len(p.candidates), "agents": p.n_agents, "tasks": p.n_tasks,
                      "joint_size": p.joint_size})
     if as_json:
         echo_json(rows)
     else:
-        df = pd.DataFrame(rows)
-        df["joint_size"] = df["joint_size"].map(lambda n: f"{n:.3g}")
-        click.echo(df.to_markdown(index=False))
+        table = [{**r, "joint_size": f"{r['joint_size']:.3g}"} for r in rows]
+        click.echo(tabulate(table, headers="keys", tablefmt="pipe", disable_numparse=True,
+                            colalign=("left",) * 3 + ("right",) * 5))
 
 
 @cli.command()
@@ -166,10 +167,9 @@ def perf(case: str, batch: int, as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
 def solvers(as_json: bool) -> None:
     """List the registered planners (built-ins and plugins) with one-line descriptions."""
-    from fixbench.solvers.registry import available
+    from fixbench.solvers.registry import listing
 
-    rows = [{"planner": n, "description": c.description, "modes": list(c.modes),
-             "module": c.__module__} for n, c in available().items()]
+    rows = listing()
     if as_json:
         echo_json(rows)
     else:

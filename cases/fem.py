@@ -26,6 +26,7 @@ import scipy.sparse.linalg as spla
 import shapely
 from scipy.spatial import cKDTree
 from skfem import Basis, BilinearForm, ElementTriMorley, ElementTriP2, ElementVector, LinearForm
+from skfem.assembly import Dofs
 from skfem.helpers import dd, ddot, sym_grad, trace
 
 from fixbench.cases.errors import CaseError, NumericalError
@@ -244,6 +245,39 @@ def check_solution(lu, K, name: str) -> None:
                              f"(relative residual {res:.1e})")
 
 
+def _loaded(spec: CaseSpec, field: str) -> bool:
+    """Whether any task loads ``field`` (bending: out-of-plane loads; membrane: in-plane ones)."""
+    for task in spec.tasks:
+        for ld in task.loads:
+            if field == "bending" and (ld.kind == "pressure" and ld.magnitude != 0
+                                       or ld.kind in ("patch", "edge_traction") and ld.force[2] != 0):
+                return True
+            if field == "membrane" and (ld.kind == "centrifugal" and ld.magnitude != 0
+                                        or ld.kind in ("patch", "edge_traction") and np.any(ld.force[:2] != 0)):
+                return True
+    return False
+
+
+def active_fields(spec: CaseSpec) -> tuple[str, ...]:
+    """The fields a case's tasks load (an unloaded field is not assembled: it cannot deform)."""
+    active = tuple(f for f in FIELDS if _loaded(spec, f))
+    if not active:
+        raise CaseError(spec.source, "tasks", "no task loads the part")
+    return active
+
+
+def element(field: str):
+    """The finite element of ``field``: Morley plates for bending, vector P2 for the membrane."""
+    return ElementTriMorley() if field == "bending" else ElementVector(ElementTriP2())
+
+
+def dof_count(spec: CaseSpec, mesh=None) -> int:
+    """Degrees of freedom of the case's active fields, from the mesh's numbering alone (no
+    quadrature, no assembly: what ``fixbench cases`` shows; equal to the assembled bases' sizes)."""
+    mesh = mesh if mesh is not None else make_mesh(spec)
+    return sum(int(Dofs(mesh, element(f)).N) for f in active_fields(spec))
+
+
 class PlateModel:
     """The FE model of one case with one material: mesh, both fields, supports, loads, probes.
 
@@ -253,40 +287,25 @@ class PlateModel:
     def __init__(self, spec: CaseSpec, mesh=None):
         self.spec = spec
         self.mesh = mesh if mesh is not None else make_mesh(spec)
-        self.active = tuple(f for f in FIELDS if self._loaded(f))
-        if not self.active:
-            raise CaseError(spec.source, "tasks", "no task loads the part")
+        self.active = active_fields(spec)
         self.fields = {f: self._field(f) for f in self.active}
         self.measure_points = measurement_points(spec)
         self._measure = {f: self.component_probes(f, self.measure_points) for f in self.active}
 
     # -- construction --------------------------------------------------------------------------
-    def _loaded(self, field: str) -> bool:
-        for task in self.spec.tasks:
-            for ld in task.loads:
-                if field == "bending" and (ld.kind == "pressure" and ld.magnitude != 0
-                                           or ld.kind in ("patch", "edge_traction") and ld.force[2] != 0):
-                    return True
-                if field == "membrane" and (ld.kind == "centrifugal" and ld.magnitude != 0
-                                            or ld.kind in ("patch", "edge_traction")
-                                            and np.any(ld.force[:2] != 0)):
-                    return True
-        return False
-
     def stiffness(self, field: str, basis: Basis | None = None) -> sp.csr_matrix:
         """Assemble the stiffness of ``field`` (a fresh assembly every call)."""
         m, t = self.spec.material, self.spec.thickness
         if field == "bending":
-            basis = basis or Basis(self.mesh, ElementTriMorley())
+            basis = basis or Basis(self.mesh, element("bending"))
             D = m.E * t**3 / (12.0 * (1.0 - m.nu**2))
             return bending_form.assemble(basis, D=D, nu=m.nu).tocsr()
-        basis = basis or Basis(self.mesh, ElementVector(ElementTriP2()))
+        basis = basis or Basis(self.mesh, element("membrane"))
         lam, mu = m.E * m.nu / (1.0 - m.nu**2), m.E / (2.0 * (1.0 + m.nu))
         return membrane_form.assemble(basis, t=t, lam=lam, mu=mu).tocsr()
 
     def _field(self, field: str) -> FieldSystem:
-        elem = ElementTriMorley() if field == "bending" else ElementVector(ElementTriP2())
-        basis = Basis(self.mesh, elem)
+        basis = Basis(self.mesh, element(field))
         fixed = self._support_dofs(field, basis)
         free = np.setdiff1d(np.arange(basis.N), fixed)
         return FieldSystem(field, basis, self.stiffness(field, basis), fixed, free)

@@ -6,13 +6,17 @@ nevergrad do), so a plugin can never silently replace a built-in.
 Built-ins and entry points are imported when first asked for by name (:func:`get`), not all at
 once: a process that runs only ``greedy`` never imports PyTorch or cvxpy, and the benchmark driver,
 which only checks names, stays small. :func:`names` lists every name without importing anything;
-:func:`available` imports them all (for ``fixbench solvers`` and the registry-wide tests).
+:func:`listing` describes every planner (a built-in's description and modes are read from its
+source, so ``fixbench solvers`` starts without PyTorch, cvxpy or pymoo; plugins are imported);
+:func:`available` imports them all (the registry-wide tests).
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
 import importlib.metadata
+import importlib.util
 
 from fixbench.solvers.base import Planner, PlannerError
 
@@ -112,3 +116,53 @@ def load_spec(spec: str) -> type[Planner]:
     if _REGISTRY.get(getattr(cls, "name", None)) is not cls:
         register(cls)
     return cls
+
+
+def _class_attrs(module: str) -> dict[str, dict]:
+    """Per class of ``module`` (read, not imported): its constant class attributes and base names."""
+    tree = ast.parse(open(importlib.util.find_spec(module).origin, encoding="utf-8").read())
+    out = {}
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef):
+            attrs = {}
+            for stmt in node.body:
+                target = stmt.targets[0] if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 else \
+                    stmt.target if isinstance(stmt, ast.AnnAssign) and stmt.value is not None else None
+                if isinstance(target, ast.Name):
+                    try:
+                        attrs[target.id] = ast.literal_eval(stmt.value)
+                    except ValueError:
+                        pass
+            out[node.name] = {"attrs": attrs, "bases": [b.id for b in node.bases if isinstance(b, ast.Name)]}
+    return out
+
+
+def _lookup(classes: dict, cls: str, attr: str, default):
+    """A class attribute through its bases in the same module, else ``default`` (Planner's)."""
+    while cls in classes:
+        if attr in classes[cls]["attrs"]:
+            return classes[cls]["attrs"][attr]
+        cls = next(iter(classes[cls]["bases"]), None)
+    return default
+
+
+def listing() -> list[dict]:
+    """Every planner: name, description, modes and module, sorted by name. Built-ins are described
+    from their source without importing them (a test checks this equals the imported classes);
+    plugins and registered planners from their classes (a name clash raises, as in :func:`get`)."""
+    rows = {n: {"planner": n, "description": c.description, "modes": list(c.modes), "module": c.__module__}
+            for n, c in _REGISTRY.items()}
+    for ep in _entry_points().values():
+        _import(ep.name)
+        c = _REGISTRY[ep.name]
+        rows[ep.name] = {"planner": ep.name, "description": c.description, "modes": list(c.modes),
+                         "module": c.__module__}
+    for module in dict.fromkeys(BUILTIN.values()):
+        classes = _class_attrs(module)
+        for cls in classes:
+            name = _lookup(classes, cls, "name", "")
+            if BUILTIN.get(name) == module and name not in rows:
+                rows[name] = {"planner": name, "description": _lookup(classes, cls, "description", ""),
+                              "modes": list(_lookup(classes, cls, "modes", Planner.modes)), "module": module}
+    return [rows[n] for n in sorted(rows)]
+

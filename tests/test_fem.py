@@ -61,3 +61,14 @@ def test_mesh_refines_where_asked(plate_toml):
     coarse = PlateModel(spec).mesh.t.shape[1]
     fine = PlateModel(spec.with_mesh_scale(0.5)).mesh.t.shape[1]
     assert 3.0 < fine / coarse < 5.0
+
+
+def test_dof_count_equals_the_assembled_bases():
+    """``fixbench cases`` counts DOFs from the mesh numbering alone; the same as assembling."""
+    from fixbench.cases.fem import PlateModel, dof_count
+    from fixbench.cases.spec import load_case_spec
+
+    for name in ("fan_small", "wing_panel_small", "membrane_strip", "plate_ss_point"):
+        spec = load_case_spec(name)
+        model = PlateModel(spec)
+        assert dof_count(spec, model.mesh) == sum(int(fs.basis.N) for fs in model.fields.values()), name

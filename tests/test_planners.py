@@ -7,6 +7,7 @@ clear error or a documented best effort: never a crash.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -112,3 +113,16 @@ def _has_field_doc(config_cls, field: str) -> bool:
             if line.strip().startswith(f"{field}:"):
                 return lines[i + 1].strip().startswith(('"""', "r\"\"\""))
     return False
+
+
+def test_listing_reads_the_builtins_without_importing_them():
+    """``fixbench solvers`` describes built-ins from their source: the same as the imported classes,
+    and without PyTorch, cvxpy or pymoo in the process."""
+    code = ("import sys; from fixbench.solvers.registry import listing; import json; "
+            "print(json.dumps([listing(), sorted(k for k in ('torch', 'cvxpy', 'pymoo') if k in sys.modules)]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    rows, heavy = json.loads(out)
+    assert heavy == []
+    imported = {n: {"planner": n, "description": c.description, "modes": list(c.modes), "module": c.__module__}
+                for n, c in available().items()}
+    assert {r["planner"]: r for r in rows} == imported
