@@ -28,12 +28,23 @@ def _affinity(job: Job):
     return payload[:4] if kind == "reference" else payload[0].problem_key
 
 
-def _worker(conn, threads: int) -> None:  # pragma: no cover - runs in a child process
+def _exit_when_orphaned(parent: int, every: float = 1.0) -> None:  # pragma: no cover - a worker thread
+    """Stop the worker once its driver is gone (killed: no one reads its result, and a learner cell
+    would otherwise go on for many minutes on a core someone else needs)."""
+    while True:
+        time.sleep(every)
+        if os.getppid() != parent:
+            os._exit(3)
+
+
+def _worker(conn, threads: int, parent: int) -> None:  # pragma: no cover - runs in a child process
     import signal
+    import threading
 
     import numba
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops us quietly
+    threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     from fixbench.cases.problem import set_cache_size
 
     numba.set_num_threads(threads)
@@ -87,7 +98,7 @@ class LocalExecutor:
         saved = {k: os.environ.get(k) for k in child_env}
         os.environ.update(child_env)  # inherited by the spawned child, read by its imports
         try:
-            proc = self.ctx.Process(target=_worker, args=(child, threads), daemon=True)
+            proc = self.ctx.Process(target=_worker, args=(child, threads, os.getpid()), daemon=True)
             proc.start()
         finally:
             for k, v in saved.items():
