@@ -11,7 +11,9 @@ import torch
 
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.nashq import NashQConfig, StackedQ, Update, _Learner, _q_row, load_weights
+from fixbench.solvers.marl_engine import Learner as _Learner
+from fixbench.solvers.marl_engine import StackedQ, Update, _q_row, load_weights
+from fixbench.solvers.nashq import NashQConfig
 from fixbench.solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
