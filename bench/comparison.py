@@ -3,18 +3,16 @@
 :func:`fixbench.bench.report.make_report` writes these as report sections:
 
     main_table          the README's main table: mean relative regret per case and mean rank over problems
-    sweep_table         budget sweep: relative regret per case x planner x samples a task, with its figure
+    sweep_table         budget sweep: relative regret per case x planner x samples a task (its figure:
+                        :func:`fixbench.bench.figures.sweep_figure`)
     heldout_table       held-out track: regret on the held-out tasks of learners that trained on the others,
                         beside planners that pay samples on every task, scored on the same tasks
     improvement_table   rliable's probability of improvement P(X < Y) between every ordered pair of planners
 
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
-bootstraps (``scipy.stats.bootstrap``, ``N_BOOT`` resamples, a fresh generator seeded with ``BOOT_SEED``
-per interval), so the same rows always give the same tables.
-
-The module also holds what :mod:`fixbench.bench.report` shares with it: number formatting, the reference key of
-a row and the figure layout helpers (grid of panels, one legend per figure).
+bootstraps (:func:`fixbench.bench.stats.mean_ci`, :func:`fixbench.bench.stats.probability_of_improvement`),
+so the same rows always give the same tables.
 """
 
 from __future__ import annotations
@@ -23,121 +21,17 @@ import json
 import math
 from collections.abc import Sequence
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.ticker import FuncFormatter, NullLocator  # noqa: E402
-from scipy.stats import bootstrap, mannwhitneyu  # noqa: E402
+from fixbench.bench.stats import mean_ci, probability_of_improvement, ref_key
+from fixbench.bench.tables import ci_column, fmt, setting_text
 
-BOOT_SEED = 20250101
-N_BOOT = 2000
-LEVEL = 0.95
-#: relative regrets (%) below this are drawn at it on log axes (a regret of 0 has no logarithm)
-REGRET_FLOOR_PCT = 1e-3
 #: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
 RANK_PROBLEM = ("case", "material", "seed", "agents", "n_tasks", "mode")
 
 
-# shared with fixbench.bench.report ---------------------------------------------------------------------------
-
-def fmt(v, digits: int = 3) -> str:
-    """A number with ``digits`` significant digits; ``-`` for None and non-finite values."""
-    if v is None or not np.isfinite(v):
-        return "-"
-    return f"{v:.{digits}g}"
-
-
-def ci_text(p, lo, hi) -> str:
-    """``point [lo, hi]``, or ``-`` without a point estimate."""
-    if not np.isfinite(p):
-        return "-"
-    return f"{fmt(p)} [{fmt(lo)}, {fmt(hi)}]"
-
-
-def setting_text(key: str, v) -> object:
-    """A setting's value in a shown table: NaN budget is unlimited, NaN samples a task is a planner's
-    own budget (outside the sweep), whole numbers without a decimal point."""
-    if isinstance(v, float) and math.isnan(v):
-        return {"budget": "unlimited", "samples_per_task": "own budget"}.get(key, "-")
-    return int(v) if isinstance(v, float) and v.is_integer() else v
-
-
-def ref_key(row) -> tuple | None:
-    """The key of a row's regret reference in :func:`fixbench.bench.report.load_references`:
-    (case, material, agents, n_tasks); None when the row lacks them (a failed cell)."""
-    try:
-        return (row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))
-    except (TypeError, ValueError):
-        return None
-
-
-def panel_grid(n: int, max_cols: int = 2, width: float = 10.0, row_height: float = 3.6):
-    """A constrained-layout figure of ``n`` panels, at most ``max_cols`` a row, about page width;
-    panels beyond ``n`` are switched off. Returns the figure and the ``n`` axes in order."""
-    ncol = max(1, min(n, max_cols))
-    nrow = max(1, math.ceil(n / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol / max_cols, row_height * nrow), squeeze=False,
-                             layout="constrained")
-    flat = list(axes.ravel())
-    for ax in flat[n:]:
-        ax.axis("off")
-    return fig, flat[:n]
-
-
-def figure_legend(fig, axes, title: str | None = None) -> None:
-    """One legend for the whole figure below the panels (each label once), instead of one a panel."""
-    handles: dict[str, object] = {}
-    for ax in axes:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            handles.setdefault(lab, h)
-    if handles:
-        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-                   ncols=min(len(handles), 5), fontsize=8, title=title, title_fontsize=8, frameon=False)
-
-
-# statistics -----------------------------------------------------------------------------------------
-
-def mean_ci(values, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """Mean and its percentile-bootstrap CI (NaNs dropped); with fewer than 2 values the CI is the
-    value itself (nothing to resample)."""
-    x = np.asarray(values, dtype=float)
-    x = x[np.isfinite(x)]
-    if len(x) == 0:
-        return math.nan, math.nan, math.nan
-    point = float(x.mean())
-    if len(x) < 2:
-        return point, point, point
-    res = bootstrap((x,), np.mean, n_resamples=N_BOOT, confidence_level=LEVEL, method="percentile",
-                    rng=np.random.default_rng(seed))
-    return point, float(res.confidence_interval.low), float(res.confidence_interval.high)
-
-
-def _p_lower(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-    """P(X < Y) from the Mann-Whitney U of (y, x): U counts the pairs with y > x, ties 1/2."""
-    u = mannwhitneyu(y, x, axis=axis, method="asymptotic").statistic
-    return u / (x.shape[axis] * y.shape[axis])
-
-
-def probability_of_improvement(x, y, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """rliable's probability of improvement of X over Y for regrets (lower is better): the chance that
-    a random value of ``x`` is below a random value of ``y``, ties counting 1/2, with its bootstrap CI
-    (both samples resampled independently). NaNs are dropped; NaN without values, and the point itself
-    as CI when a sample has fewer than 2 values."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
-    if len(x) == 0 or len(y) == 0:
-        return math.nan, math.nan, math.nan
-    point = float(_p_lower(x, y))
-    if len(x) < 2 or len(y) < 2:
-        return point, point, point
-    res = bootstrap((x, y), _p_lower, n_resamples=N_BOOT, confidence_level=LEVEL, method="percentile",
-                    vectorized=True, rng=np.random.default_rng(seed))
-    return point, float(res.confidence_interval.low), float(res.confidence_interval.high)
-
+# rows scored against the reference --------------------------------------------------------------------
 
 def _scored(rows: pd.DataFrame) -> pd.DataFrame:
     """Successful rows with a finite relative regret, with ``regret_pct`` (%)."""
@@ -146,12 +40,9 @@ def _scored(rows: pd.DataFrame) -> pd.DataFrame:
 
 
 def _regret_stats(values) -> dict:
+    """Mean relative regret (%) and its CI as a table record's columns."""
     p, lo, hi = mean_ci(values)
     return {"regret_pct": p, "regret_pct_lo": lo, "regret_pct_hi": hi}
-
-
-def _ci_column(df: pd.DataFrame, name: str) -> list[str]:
-    return [ci_text(p, lo, hi) for p, lo, hi in zip(df[name], df[f"{name}_lo"], df[f"{name}_hi"])]
 
 
 # the budget sweep -----------------------------------------------------------------------------------
@@ -173,36 +64,7 @@ def show_sweep(table: pd.DataFrame) -> pd.DataFrame:
     """The sweep table formatted for Markdown and LaTeX."""
     return pd.DataFrame({"case": table["case"], "planner": table["planner"],
                          "samples a task": table["samples_per_task"], "cells": table["cells"],
-                         "regret (%)": _ci_column(table, "regret_pct")})
-
-
-def sweep_figure(table: pd.DataFrame, colors: dict):
-    """Relative regret (%) against samples a task, one panel a case (log-log; each panel its own
-    scales), a line with markers a planner and its 95 % CI as a band; one legend for the figure."""
-    cases = list(dict.fromkeys(table["case"]))
-    fig, axes = panel_grid(len(cases), row_height=3.5)
-    for ax, case in zip(axes, cases):
-        sub = table[table["case"] == case]
-        for label, g in sub.groupby("planner", sort=True):
-            g = g.sort_values("samples_per_task")
-            x = g["samples_per_task"].to_numpy(dtype=float)
-            y, lo, hi = (np.maximum(g[c].to_numpy(dtype=float), REGRET_FLOOR_PCT)
-                         for c in ("regret_pct", "regret_pct_lo", "regret_pct_hi"))
-            ax.plot(x, y, marker="o", ms=4, lw=1.3, color=colors[label], label=label)
-            ax.fill_between(x, lo, hi, color=colors[label], alpha=0.2, lw=0)
-        ticks = np.sort(sub["samples_per_task"].unique()).astype(float)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xticks(ticks)
-        ax.xaxis.set_minor_locator(NullLocator())
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.set_xlabel("samples per task")
-        ax.set_ylabel(f"relative regret to reference (%)\n(log; below {REGRET_FLOOR_PCT:g} % drawn at it)",
-                      fontsize=8)
-        ax.set_title(str(case), fontsize=9)
-        ax.grid(True, which="major", alpha=0.3)
-    figure_legend(fig, axes, title="planner (mean over cells, band: 95 % CI)")
-    return fig
+                         "regret (%)": ci_column(table, "regret_pct")})
 
 
 # the held-out track ---------------------------------------------------------------------------------
@@ -267,7 +129,7 @@ def show_heldout(table: pd.DataFrame) -> pd.DataFrame:
     """The held-out table formatted for Markdown and LaTeX."""
     return pd.DataFrame({"case": table["case"], "planner": table["planner"], "track": table["track"],
                          "samples": table["samples_note"], "samples a cell": table["samples"].map(fmt),
-                         "cells": table["cells"], "regret on held-out tasks (%)": _ci_column(table, "regret_pct")})
+                         "cells": table["cells"], "regret on held-out tasks (%)": ci_column(table, "regret_pct")})
 
 
 # probability of improvement -------------------------------------------------------------------------
@@ -381,7 +243,7 @@ def show_main(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
     """The main table formatted like README: ``mean [lo, hi]`` per column, then the mean rank."""
     out = pd.DataFrame({"planner": table["planner"]})
     for name in columns:
-        out[name] = _ci_column(table, name)
+        out[name] = ci_column(table, name)
     out["mean rank"] = table["mean_rank"].map(lambda v: fmt(v, 3))
     out["problems"] = table["problems"]
     return out

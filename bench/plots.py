@@ -15,11 +15,12 @@ import numpy as np  # noqa: E402
 from fixbench.cases.problem import Problem  # noqa: E402
 
 
-def _outline(ax, problem: Problem) -> None:
+def outline(ax, problem: Problem, lw: float = 1.2) -> None:
+    """The part's outline and holes in black, in millimetres."""
     poly = problem.spec.polygon
     for ring in (poly.exterior, *poly.interiors):
         x, y = np.asarray(ring.coords).T * 1e3
-        ax.plot(x, y, color="black", lw=1.2)
+        ax.plot(x, y, color="black", lw=lw)
 
 
 def show_case(problem: Problem, out: Path) -> Path:
@@ -28,7 +29,7 @@ def show_case(problem: Problem, out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7))
     p = model.mesh.p * 1e3
     ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
-    _outline(ax, problem)
+    outline(ax, problem)
     colors = plt.get_cmap("tab10")
     for a, idx in enumerate(problem.action_sets):
         c = problem.candidates[idx] * 1e3
@@ -62,7 +63,7 @@ def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7))
     tc = ax.tricontourf(mtri.Triangulation(p[0], p[1], model.mesh.t.T), mag, levels=30, cmap="viridis")
     fig.colorbar(tc, ax=ax, label="|u| (um)")
-    _outline(ax, problem)
+    outline(ax, problem)
     c = problem.candidates[np.asarray(layout).ravel()] * 1e3
     ax.scatter(c[:, 0], c[:, 1], color="red", marker="o", s=30, label="fixtures")
     at = [ld.at for ld in problem.tasks[task].loads if ld.at is not None]

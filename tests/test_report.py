@@ -16,26 +16,12 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.comparison import (
-    heldout_table,
-    improvement_table,
-    main_table,
-    probability_of_improvement,
-    sweep_figure,
-    sweep_table,
-)
-from fixbench.bench.report import (
-    anytime_figure,
-    bootstrap_ci,
-    ecdf_figure,
-    iqm,
-    load_references,
-    load_rows,
-    make_report,
-    summary_table,
-    violin_figure,
-)
+from fixbench.bench.comparison import heldout_table, improvement_table, main_table, sweep_table
+from fixbench.bench.figures import anytime_figure, ecdf_figure, sweep_figure, violin_figure
+from fixbench.bench.report import load_references, load_rows, make_report
+from fixbench.bench.stats import bootstrap_ci, iqm, probability_of_improvement
 from fixbench.bench.store import ROW_SCHEMA, Store, load_results, write_json_atomic
+from fixbench.bench.tables import summary_table
 
 OPT = {"aluminium": [2e-5, 4e-5], "steel": [1e-5, 2e-5]}
 PLANNERS = {"random": 1.5, "greedy": 1.2, "nashq": 1.8}  # final objective / optimum

@@ -1,0 +1,139 @@
+"""The report's per-run tables and the number formatting every table shares.
+
+``summary_table`` (per case and planner: counts, means and IQMs with bootstrap CIs, rank),
+``reference_table`` (the regret references) and ``profile_table`` (the performance profile's
+summary); the comparison tables (main, sweep, held-out, probability of improvement) are in
+:mod:`fixbench.bench.comparison`. Each table comes as numbers (for CSV) and formatted by a
+``show_*`` function (for Markdown and LaTeX).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from fixbench.bench.stats import SETTINGS, bootstrap_ci, iqm
+
+# formatting ------------------------------------------------------------------------------------------
+
+def fmt(v, digits: int = 3) -> str:
+    """A number with ``digits`` significant digits; ``-`` for None and non-finite values."""
+    if v is None or not np.isfinite(v):
+        return "-"
+    return f"{v:.{digits}g}"
+
+
+def ci_text(p, lo, hi) -> str:
+    """``point [lo, hi]``, or ``-`` without a point estimate."""
+    if not np.isfinite(p):
+        return "-"
+    return f"{fmt(p)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def ci_column(df: pd.DataFrame, name: str) -> list[str]:
+    """Column ``name`` with its ``name_lo`` and ``name_hi`` as ``point [lo, hi]`` texts."""
+    return [ci_text(p, lo, hi) for p, lo, hi in zip(df[name], df[f"{name}_lo"], df[f"{name}_hi"])]
+
+
+def setting_text(key: str, v) -> object:
+    """A setting's value in a shown table: NaN budget is unlimited, NaN samples a task is a planner's
+    own budget (outside the sweep), whole numbers without a decimal point."""
+    if isinstance(v, float) and math.isnan(v):
+        return {"budget": "unlimited", "samples_per_task": "own budget"}.get(key, "-")
+    return int(v) if isinstance(v, float) and v.is_integer() else v
+
+
+def show_numbers(table: pd.DataFrame, digits: int = 3) -> pd.DataFrame:
+    """``table`` with every float as ``fmt`` writes it (a table of plain numbers, shown)."""
+    return table.map(lambda v: fmt(v, digits) if isinstance(v, float) else v)
+
+
+# the per-run tables ----------------------------------------------------------------------------------
+
+def group_keys(rows: pd.DataFrame) -> list[str]:
+    """``case`` and the SETTINGS the run varies; a sweep's budget follows from its samples a task."""
+    varied = [k for k in SETTINGS if rows[k].nunique(dropna=True) > 1]
+    if "samples_per_task" in varied:
+        varied = [k for k in varied if k != "budget"]
+    return ["case"] + varied
+
+
+def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per case (and varied setting) x planner: counts, means and IQMs with bootstrap CIs, rank."""
+    keys = group_keys(rows)
+    recs = []
+    for gk, g in rows.groupby(keys + ["label"], sort=True, dropna=False):
+        gk = gk if isinstance(gk, tuple) else (gk,)
+        ok = g[g["ok"]]
+        strata = list(zip(ok["material"], ok["agents"], ok["n_tasks"]))
+        rec = dict(zip(keys + ["planner"], gk))
+        rec.update(cells=len(g), failed=int((~g["ok"]).sum()))
+        stats = {
+            "objective_um": (ok["objective_m"] * 1e6, np.mean),
+            "iqm_um": (ok["objective_m"] * 1e6, iqm),
+            "regret_pct": (ok["relative_regret"] * 100, np.mean),
+            "samples_to_1pct": (ok["samples_to_1pct"], np.mean),
+            "samples_to_5pct": (ok["samples_to_5pct"], np.mean),
+            "success_5pct_pct": (ok["success_5pct"] * 100, np.mean),
+            "wall_s": (ok["wall_s"], np.mean),
+        }
+        for name, (vals, stat) in stats.items():
+            rec[name], rec[f"{name}_lo"], rec[f"{name}_hi"] = bootstrap_ci(vals.to_numpy(), strata, stat)
+        rec["reached_1pct"] = int(ok["samples_to_1pct"].notna().sum())
+        rec["reached_5pct"] = int(ok["samples_to_5pct"].notna().sum())
+        recs.append(rec)
+    df = pd.DataFrame(recs)
+    if df.empty:
+        return df
+    within = keys
+    df["rank"] = df.groupby(within, dropna=False)["objective_um"].rank(method="min")
+    return df
+
+
+def show_summary(df: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+    """The summary table formatted for Markdown and LaTeX: ``mean [lo, hi]`` per statistic."""
+    out = pd.DataFrame()
+    for k in keys:
+        out[k] = df[k].map(lambda v, k=k: setting_text(k, v))
+    out["planner"] = df["planner"]
+    out["cells"] = df["cells"]
+    out["failed"] = df["failed"]
+    out["max def. (um)"] = ci_column(df, "objective_um")
+    out["IQM (um)"] = ci_column(df, "iqm_um")
+    out["regret (%)"] = ci_column(df, "regret_pct")
+    out["samples to 1%"] = [f"{c} ({r}/{n - f})" for c, r, n, f in
+                            zip(ci_column(df, "samples_to_1pct"), df["reached_1pct"], df["cells"], df["failed"])]
+    out["samples to 5%"] = [f"{c} ({r}/{n - f})" for c, r, n, f in
+                            zip(ci_column(df, "samples_to_5pct"), df["reached_5pct"], df["cells"], df["failed"])]
+    out["success 5% (%)"] = ci_column(df, "success_5pct_pct")
+    out["wall (s)"] = ci_column(df, "wall_s")
+    out["rank"] = df["rank"].map(lambda r: "-" if not np.isfinite(r) else str(int(r)))
+    return out
+
+
+def reference_table(refs: dict) -> pd.DataFrame:
+    """One line a regret reference: its optima (mean, min, max; shared), proven or not, method."""
+    recs = []
+    for (case, mat, agents, n_tasks), ref in sorted(refs.items(), key=lambda kv: str(kv[0])):
+        opt = np.asarray(ref["per_task"], dtype=float) * 1e6
+        recs.append({"case": case, "material": mat, "agents": agents, "tasks": n_tasks,
+                     "mean optimum (um)": float(opt.mean()), "min (um)": float(opt.min()),
+                     "max (um)": float(opt.max()),
+                     "shared optimum (um)": (ref["shared"] * 1e6 if ref.get("shared") is not None
+                                             else math.nan),
+                     "proven": bool(ref.get("proven")), "method": ref.get("method") or "",
+                     "samples": ref.get("samples")})
+    return pd.DataFrame(recs)
+
+
+def profile_table(ratios: pd.DataFrame, rho: dict) -> pd.DataFrame:
+    """The performance profile's summary (:func:`fixbench.bench.stats.performance_profile`): per planner,
+    the fraction of problems on which it is the best, within 1.1 and 2 of the best, failed or missing."""
+    return pd.DataFrame({"planner": list(rho),
+                         "problems": len(ratios),
+                         "best (tau=1)": [float(rho[k][0]) for k in rho],
+                         "within 1.1": [float((ratios[k] <= 1.1).mean()) for k in rho],
+                         "within 2": [float((ratios[k] <= 2).mean()) for k in rho],
+                         "failed or missing": [float((~np.isfinite(ratios[k])).mean()) for k in rho]})
