@@ -26,7 +26,8 @@ BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solver
            "greedy": "fixbench.solvers.greedy", "local": "fixbench.solvers.local",
            "ga": "fixbench.solvers.evolutionary", "pso": "fixbench.solvers.evolutionary",
            "qp": "fixbench.solvers.qp", "cbr": "fixbench.solvers.cbr",
-           "nashq": "fixbench.solvers.nashq", "iql": "fixbench.solvers.nashq"}
+           "nashq": "fixbench.solvers.nashq", "iql": "fixbench.solvers.nashq",
+           "optuna": "fixbench.solvers.optuna_tpe"}
 _REGISTRY: dict[str, type[Planner]] = {}
 
 
