@@ -285,23 +285,6 @@ def export(run_dir, fmt, out) -> None:
                + "".join(f"; {v} cells left out ({k})" for k, v in skipped.items()) + ")")
 
 
-@cli.command()
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(["iohprofiler", "marl-eval", "csv"]), required=True,
-              help="iohprofiler (IOHanalyzer's folders), marl-eval (one JSON) or csv (rows and traces).")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder to write (default: RUN_DIR/export/FORMAT); an earlier export there is replaced.")
-def export(run_dir, fmt, out) -> None:
-    """Write the run in RUN_DIR in a format other tools read (IOHanalyzer, marl-eval, CSV)."""
-    from fixbench.bench.export import export_run
-
-    res = export_run(run_dir, fmt, out or run_dir / "export" / fmt)
-    counts = {k: v for k, v in res.items() if isinstance(v, int)}
-    skipped = res.get("skipped") or {}
-    click.echo(f"wrote {res['out']} ({fmt}: " + ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in counts.items())
-               + "".join(f"; {v} cells left out ({k})" for k, v in skipped.items()) + ")")
-
-
 @cli.group()
 def references() -> None:
     """Regret references of the full parts: build them, merge better layouts from a run."""
