@@ -34,7 +34,9 @@ class StackedQ(nn.Module):
     for all agents; one clip, one fused AdamW step and one target lerp per update for all of them).
 
     Output width is the largest action set; the padded actions of smaller sets are masked.
-    Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) from ``generator``. Training uses
+    Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) from ``generator``, never from torch's
+    global generator; without one the weights are zeros, for a network whose weights are loaded next
+    (the target network, a saved network). Training uses
     :meth:`chosen` and :meth:`backward` (hand-written backprop into a persistent gradient buffer, checked
     against autograd by a test): autograd's gather backward allocates and zero-fills a fresh
     (N, hidden, actions) gradient every update, which cost more than the layer's arithmetic.
@@ -48,7 +50,9 @@ class StackedQ(nn.Module):
         for k in range(4):
             self.shapes += [(n_agents, dims[k], dims[k + 1]), (n_agents, 1, dims[k + 1])]
         self.register_buffer("dims", torch.tensor([n_agents, n_in, hidden, n_out]))
-        self.flat = nn.Parameter(torch.empty(sum(math.prod(s) for s in self.shapes)))
+        self.flat = nn.Parameter(torch.zeros(sum(math.prod(s) for s in self.shapes)))
+        if generator is None:
+            return
         with torch.no_grad():
             for k, v in enumerate(self._views(self.flat)):
                 bound = 1.0 / math.sqrt(dims[k // 2])
@@ -326,7 +330,7 @@ class Learner:
             mask[i, size:] = -np.inf
         n_in = feats.shape[1] + (2 * (n - 1) if self.joint else 0)
         self.q = StackedQ(n, n_in, cfg.hidden, a_max, generator).to(device)
-        self.target = StackedQ(n, n_in, cfg.hidden, a_max).to(device)
+        self.target = StackedQ(n, n_in, cfg.hidden, a_max).to(device)  # zeros, then the policy's weights
         self.target.load_state_dict(self.q.state_dict())
         self.target.requires_grad_(False)
         self.agent_idx = torch.arange(n, device=device)

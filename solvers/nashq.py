@@ -165,10 +165,9 @@ class _QPlanner(Planner):
                                f"samples, {int(ev.remaining)} available")
         episodes = min(cfg.episodes, fit)
 
-        # seeding: everything random comes from rng (numpy) and a torch generator seeded from it
-        seed = int(rng.integers(2**31 - 1))
-        torch.manual_seed(seed)
-        gen = torch.Generator().manual_seed(seed)
+        # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
+        # networks' initial weights); torch's global generator is neither seeded nor drawn from
+        gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
         threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
         det = torch.are_deterministic_algorithms_enabled()
         torch.use_deterministic_algorithms(True, warn_only=True)
