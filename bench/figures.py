@@ -190,11 +190,52 @@ def sweep_figure(table: pd.DataFrame, colors: dict):
 
 # learners: the seed paper's Figure 4 ----------------------------------------------------------------
 
-def _curve(curves: dict, cell: str, name: str) -> np.ndarray:
-    return curves.get((cell, name), np.zeros(0))
+#: the training curves Figure 4 draws (a learner's ``info`` holds them; a run directory stores them)
+FIGURE4_CURVES = ("step_reward", "episode_return", "episode_regret_ref", "episode_regret_true", "step_max_u",
+                  "step_task")
+
+
+def learner_runs(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict) -> dict[str, list[dict]]:
+    """Figure 4's input from a run directory: {label: [one dict a cell]}, labels sorted; each dict holds
+    the cell's ``FIGURE4_CURVES`` (empty where not stored) and ``optimum``, the per-task optima of its
+    regret reference (None without one)."""
+    info = ok.set_index("cell")
+    sub = curves[curves["cell"].isin(cells)].sort_values(["cell", "curve", "index"], kind="stable")
+    by = {k: g["value"].to_numpy(dtype=float) for k, g in sub.groupby(["cell", "curve"], sort=False)}
+    runs = {}
+    for lab in sorted(info.loc[cells, "label"].unique()):
+        runs[lab] = []
+        for c in (c for c in cells if info.loc[c, "label"] == lab):
+            ref = refs.get(ref_key(info.loc[c]))
+            runs[lab].append({**{k: by.get((c, k), np.zeros(0)) for k in FIGURE4_CURVES},
+                              "optimum": None if ref is None else np.asarray(ref["per_task"], dtype=float)})
+    return runs
+
+
+def figure4(runs: dict[str, list[dict]], colors: dict):
+    """Seed Figure 4 as one figure of 2 x 3 panels (the report's); see :func:`draw_figure4`."""
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
+    ax_a, ax_b, ax_c, ax_c2, ax_d, ax_none = axes.ravel()
+    ax_none.axis("off")
+    draw_figure4((ax_a, ax_b, ax_c, ax_c2, ax_d), runs, colors)
+    fig.tight_layout()
+    return fig
+
+
+def figure4_panels(runs: dict[str, list[dict]], colors: dict) -> list:
+    """Seed Figure 4 as four figures, one a panel: (a), (b), (c) with both regrets, (d) (the files of
+    ``python -m fixbench.bench.marl``); see :func:`draw_figure4`."""
+    (fig_a, ax_a), (fig_b, ax_b) = plt.subplots(figsize=(7, 4)), plt.subplots(figsize=(7, 4))
+    fig_c, (ax_c, ax_c2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig_d, ax_d = plt.subplots(figsize=(7, 4))
+    draw_figure4((ax_a, ax_b, ax_c, ax_c2, ax_d), runs, colors)
+    for fig in (fig_a, fig_b, fig_c, fig_d):
+        fig.tight_layout()
+    return [fig_a, fig_b, fig_c, fig_d]
 
 
 def _median_band(ax, arrays: list[np.ndarray], x0: int, color, label):
+    """Median over the runs with the interquartile band; runs of different lengths pad with NaN."""
     arrays = [a for a in arrays if len(a)]
     if not arrays:
         return
@@ -211,42 +252,38 @@ def _median_band(ax, arrays: list[np.ndarray], x0: int, color, label):
 
 
 def _smooth(a: np.ndarray) -> np.ndarray:
+    """Moving average over a fiftieth of the curve (the step reward is too noisy to read raw)."""
     w = max(1, len(a) // 50)
     return pd.Series(a).rolling(w, min_periods=1).mean().to_numpy() if w > 1 else a
 
 
-def figure4(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict, colors: dict):
-    """Seed Figure 4: (a) step reward, (b) episodic return, (c) episodic regret (reference code's,
-    and true regret against the optimum), (d) violin of the deformation of every layout tried in
-    training relative to the task's optimum."""
-    info = ok.set_index("cell")
-    sub = curves[curves["cell"].isin(cells)].sort_values(["cell", "curve", "index"], kind="stable")
-    curves = {k: g["value"].to_numpy(dtype=float) for k, g in sub.groupby(["cell", "curve"], sort=False)}
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
-    ax_a, ax_b, ax_c, ax_c2, ax_d, ax_none = axes.ravel()
-    ax_none.axis("off")
+def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
+    """The seed paper's Figure 4 of learners' training runs on ``axes`` (a, b, c, c2, d): (a) step reward,
+    (b) episodic return, (c) episodic regret (the reference code's, and c2 the true regret against each
+    task's optimum, or the best layout the run saw on it without one), (d) violin of the deformation of
+    every layout tried in training above that optimum. ``runs``: {label: [run, ...]}, each run a dict of
+    ``FIGURE4_CURVES`` and ``optimum`` (:func:`learner_runs`); one line a label, the median over its runs
+    with the interquartile band."""
+    ax_a, ax_b, ax_c, ax_c2, ax_d = axes
     violin, true_src = [], set()
-    for lab in sorted(info.loc[cells, "label"].unique()):
-        lc = [c for c in cells if info.loc[c, "label"] == lab]
+    for lab, lc in runs.items():
         col = colors[lab]
-        _median_band(ax_a, [_smooth(_curve(curves, c, "step_reward")) for c in lc], 1, col, lab)
-        _median_band(ax_b, [_curve(curves, c, "episode_return") for c in lc], 1, col, lab)
-        _median_band(ax_c, [_curve(curves, c, "episode_regret_ref") for c in lc], 1, col, lab)
+        _median_band(ax_a, [_smooth(r["step_reward"]) for r in lc], 1, col, lab)
+        _median_band(ax_b, [r["episode_return"] for r in lc], 1, col, lab)
+        _median_band(ax_c, [r["episode_regret_ref"] for r in lc], 1, col, lab)
         true_reg = []
-        for c in lc:
-            row = info.loc[c]
-            u, task = _curve(curves, c, "step_max_u"), _curve(curves, c, "step_task").astype(int)
-            ref = refs.get(ref_key(row))
-            eps = len(_curve(curves, c, "episode_return"))
-            if ref is not None and len(u) and len(u) == len(task):
-                opt = np.asarray(ref["per_task"], dtype=float)[task]
+        for r in lc:
+            u, task = r["step_max_u"], r["step_task"].astype(int)
+            eps = len(r["episode_return"])
+            if r["optimum"] is not None and len(u) and len(u) == len(task):
+                opt = r["optimum"][task]
                 true_src.add("reference optimum")
                 if eps and len(u) % eps == 0:
                     true_reg.append((u - opt).reshape(eps, -1).sum(axis=1) * 1e6)
                 violin.append(pd.DataFrame({"planner": lab, "diff": (u / opt - 1) * 100}))
             else:
                 true_src.add("best seen in the run")
-                true_reg.append(_curve(curves, c, "episode_regret_true") * 1e6)
+                true_reg.append(r["episode_regret_true"] * 1e6)
                 if len(u) and len(u) == len(task):
                     best = pd.Series(u).groupby(task).transform("min").to_numpy()
                     violin.append(pd.DataFrame({"planner": lab, "diff": (u / best - 1) * 100}))
@@ -267,8 +304,6 @@ def figure4(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict
     ax_d.set(xlabel="learner", ylabel="deformation above the optimum (%)",
              title="(d) layouts tried in training")
     ax_d.title.set_fontsize(9)
-    fig.tight_layout()
-    return fig
 
 
 # deformation fields ---------------------------------------------------------------------------------

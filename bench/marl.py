@@ -7,15 +7,15 @@
     python -m fixbench.bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
                                           [--episodes 100] [--json]
 
-``figure4`` draws (a) step reward against step, (b) episodic return and (c) episodic regret (the
-reference's N T 0.7854 - N sum r, and the true regret against the best layout seen) against
-episode, and (d) a violin plot of the percentage difference in max deformation between the
-configuration the trained policy chose for each task and the best one known for that task, one
-violin per run (e.g. per agent count). ``speed`` runs the full protocol once and reports the
-wall time split into oracle, action selection and network updates (timed inside the planner).
-``table`` compares nashq and iql with the proven optimum on every ``*_small`` case. ``heldout``
-trains a learner on a fraction of the tasks and compares its zero-sample layouts on the other tasks
-with planners that spend samples on each of them.
+``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
+file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
+N T 0.7854 - N sum r, and the true regret against the best layout seen) against episode, and (d) a
+violin plot of the percentage difference in max deformation of every layout tried in training from
+the best one seen on its task, one line and one violin per run (e.g. per agent count). ``speed``
+runs the full protocol once and reports the wall time split into oracle, action selection and
+network updates (timed inside the planner). ``table`` compares nashq and iql with the proven optimum
+on every ``*_small`` case. ``heldout`` trains a learner on a fraction of the tasks and compares its
+zero-sample layouts on the other tasks with planners that spend samples on each of them.
 
 Oracle set-up (meshing, factorisation, and the compliance columns of every candidate, which the
 oracle otherwise computes lazily the first time a layout uses a candidate) is done and timed
@@ -30,106 +30,43 @@ import os
 import time
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from fixbench.cases.problem import Problem, load_problem  # noqa: E402
-from fixbench.cases.spec import case_names  # noqa: E402
+from fixbench.bench.figures import FIGURE4_CURVES, figure4_panels, palette
+from fixbench.bench.plots import save_png
+from fixbench.cases.problem import Problem, load_problem
+from fixbench.cases.spec import case_names
 
 
-def _runs(info_or_results) -> dict[str, tuple[dict, np.ndarray | None]]:
-    """{label: (info, greedy max deformation per task or None)} from one or many runs."""
-    def one(x):
-        if hasattr(x, "info"):  # a PlanResult: the greedy policy's scored deformation is known
-            return x.info, np.asarray(x.max_deformation)
-        return x, None
+def _learner_runs(info_or_results) -> dict[str, list[dict]]:
+    """Figure 4's input (:func:`fixbench.bench.figures.learner_runs`) from one run or a dict {label: run},
+    a run being a planner's info dict or PlanResult; the true regret and the violin are against the best
+    layout each run saw on a task (a run keeps no optima)."""
+    def one(x) -> dict:
+        info = x.info if hasattr(x, "info") else x
+        return {**{k: np.asarray(info[k], dtype=float) for k in FIGURE4_CURVES}, "optimum": None}
 
     if hasattr(info_or_results, "info") or (isinstance(info_or_results, dict) and "step_reward" in info_or_results):
-        info, u = one(info_or_results)
-        return {f"{info.get('algorithm', 'run')}": (info, u)}
-    return {str(k): one(v) for k, v in dict(info_or_results).items()}
+        info = getattr(info_or_results, "info", info_or_results)
+        return {f"{info.get('algorithm', 'run')}": [one(info_or_results)]}
+    return {str(k): [one(v)] for k, v in dict(info_or_results).items()}
 
 
-def _pct_difference(info: dict, greedy_u: np.ndarray | None) -> np.ndarray:
-    """% difference of each task's chosen configuration from the best known on that task.
-
-    Chosen = the greedy policy's layout when the scored result is given, else the layout played
-    in the last episode; best known = min(best seen in training, chosen).
-    """
-    best = np.array([np.inf if b is None else b for b in info["best_seen_max_u"]])
-    if greedy_u is not None:
-        tasks = np.array(info["train_tasks"])
-        u = greedy_u[tasks]
-    else:
-        n = len(info["train_tasks"])
-        tasks = np.array(info["step_task"][-n:])
-        u = np.array(info["step_max_u"][-n:])
-    ref = np.minimum(best[tasks], u)
-    return 100.0 * (u - ref) / ref
+#: Figure 4's files, one a panel (README shows them)
+FIGURE4_FILES = ("fig4a_step_reward.png", "fig4b_episodic_return.png", "fig4c_episodic_regret.png",
+                 "fig4d_violin.png")
 
 
-def figure4(info_or_results, out_dir: str | Path, smooth: int = 500) -> list[Path]:
-    """Write the four panels of the seed's Figure 4 as PNGs into ``out_dir``; returns the paths.
+def figure4(info_or_results, out_dir: str | Path) -> list[Path]:
+    """Write the four panels of the seed's Figure 4 (:func:`fixbench.bench.figures.figure4_panels`, the
+    report's Figure 4 one panel a file) as PNGs into ``out_dir``; returns the paths.
 
     ``info_or_results``: a planner's info dict or PlanResult, or a dict {label: info or PlanResult}
-    (one line / violin per label). ``smooth``: moving-average window of panel (a).
+    (one line and one violin per label).
     """
-    import seaborn as sns
-
-    runs = _runs(info_or_results)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for label, (info, _) in runs.items():
-        r = np.asarray(info["step_reward"])
-        ax.plot(r, lw=0.3, alpha=0.3)
-        w = max(1, min(smooth, len(r) // 10 or 1))
-        ax.plot(np.arange(w - 1, len(r)), np.convolve(r, np.ones(w) / w, mode="valid"),
-                color=ax.lines[-1].get_color(), label=f"{label} (mean of {w})")
-    ax.set(xlabel="step", ylabel="step reward", title="(a) step reward")
-    ax.legend(fontsize=8)
-    paths.append(_save(fig, out_dir / "fig4a_step_reward.png"))
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for label, (info, _) in runs.items():
-        ax.plot(np.arange(1, len(info["episode_return"]) + 1), info["episode_return"], label=label)
-    ax.set(xlabel="episode", ylabel="episodic return", title="(b) episodic return")
-    ax.legend(fontsize=8)
-    paths.append(_save(fig, out_dir / "fig4b_episodic_return.png"))
-
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-    for label, (info, _) in runs.items():
-        e = np.arange(1, len(info["episode_return"]) + 1)
-        ax1.plot(e, info["episode_regret_ref"], label=label)
-        ax2.plot(e, np.asarray(info["episode_regret_true"]) * 1e3, label=label)
-    ax1.set(xlabel="episode", ylabel="N T 0.7854 - N sum r", title="(c) episodic regret (reference)")
-    ax2.set(xlabel="episode", ylabel="sum of (max u - best u) [mm]",
-            title=f"(c) true regret ({next(iter(runs.values()))[0].get('regret_reference', '')})")
-    ax2.set_yscale("symlog", linthresh=1e-3)
-    ax1.legend(fontsize=8)
-    paths.append(_save(fig, out_dir / "fig4c_episodic_regret.png"))
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    rows = [(label, v) for label, (info, u) in runs.items() for v in _pct_difference(info, u)]
-    labels = [r[0] for r in rows]
-    values = np.array([r[1] for r in rows])
-    sns.violinplot(x=labels, y=values, ax=ax, cut=0, inner="quartile")
-    ax.set(xlabel="fixture configuration (run)", ylabel="% difference in max deformation\nfrom best known",
-           title="(d) deformation of the chosen configurations")
-    paths.append(_save(fig, out_dir / "fig4d_violin.png"))
-    return paths
-
-
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    runs = _learner_runs(info_or_results)
+    figs = figure4_panels(runs, palette(list(runs)))
+    return [save_png(fig, Path(out_dir) / name) for fig, name in zip(figs, FIGURE4_FILES)]
 
 
 def prepare(problem: Problem) -> float:

@@ -51,7 +51,7 @@ def show_case(problem: Problem, out: Path) -> Path:
     ax.set_title(f"{problem.name}: {problem.spec.material.name}, {model.mesh.t.shape[1]} elements, "
                  f"{len(problem.candidates)} candidates, {problem.n_tasks} tasks", fontsize=9)
     ax.legend(fontsize=7, loc="best", markerscale=2)
-    return _save(fig, out)
+    return save_png(fig, out)
 
 
 def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
@@ -73,7 +73,7 @@ def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
     ax.set_aspect("equal")
     ax.set_title(f"{problem.name}, task {task}: max |u| at nodes {mag.max():.3g} um", fontsize=9)
     ax.legend(fontsize=7)
-    return _save(fig, out)
+    return save_png(fig, out)
 
 
 def write_vtk(problem: Problem, task: int, layout, out: Path) -> Path:
@@ -101,10 +101,11 @@ def anytime_plot(result, out: Path) -> Path:
     ax.set_xlabel("samples spent on the task")
     ax.set_ylabel("best max |u| so far (um)")
     ax.set_title(f"{result.planner} on {result.case} ({result.mode}, seed {result.seed})", fontsize=9)
-    return _save(fig, out)
+    return save_png(fig, out)
 
 
-def _save(fig, out: Path) -> Path:
+def save_png(fig, out: Path) -> Path:
+    """``fig`` as a PNG at ``out`` (its folder made), then closed."""
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(out, dpi=130)

@@ -54,6 +54,7 @@ from fixbench.bench.figures import (  # noqa: E402
     ecdf_figure,
     field_figure,
     figure4,
+    learner_runs,
     palette,
     profile_figure,
     sweep_figure,
@@ -365,7 +366,7 @@ def _figure_sections(w: _Writer, run_dir: Path, rows: pd.DataFrame, refs: dict, 
     curves = load_curves(run_dir)
     cells = learner_cells(curves, ok)
     if cells:
-        w.figure("figure4", figure4(ok, curves, cells, refs, colors),
+        w.figure("figure4", figure4(learner_runs(ok, curves, cells, refs), colors),
                  "Learners, seed Figure 4: (a) step reward (moving average) against training step, (b) "
                  "episodic return, (c) episodic regret of the reference code and true regret against "
                  "the optimum, (d) violin of the deformation of every layout tried in training above the "
