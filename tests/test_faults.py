@@ -292,19 +292,18 @@ def test_workers_stop_when_the_driver_is_killed(tmp_path):
     (tmp_path / "sleepy.py").write_text(
         "import time\nfrom fixbench.solvers import Planner\n\n"
         "class Sleepy(Planner):\n    name = 'sleepy'\n    description = 'never finishes'\n\n"
-        "    def plan(self, problem, ev, rng, mode):\n        time.sleep(600)\n")
+        "    def plan(self, problem, ev, rng, mode):\n"
+        f"        open({str(tmp_path / 'started')!r}, 'w').close()\n        time.sleep(600)\n")
     m = tmp_path / "m.toml"
     m.write_text(TINY.replace('planners = ["random", "greedy"]', 'planners = ["sleepy:Sleepy"]'))
     env = {**os.environ, "PYTHONPATH": str(tmp_path) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen([sys.executable, "-m", "fixbench", "run", str(m), "--out", str(tmp_path / "run"),
                              "--workers", "1"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
-    workers = []
-    while time.monotonic() < deadline and not workers:
-        workers = [c for c in psutil.Process(proc.pid).children() if "resource_tracker" not in " ".join(c.cmdline())]
-        time.sleep(0.2)
+    while time.monotonic() < deadline and not (tmp_path / "started").exists():  # the worker is in its cell
+        time.sleep(0.1)
+    workers = [c for c in psutil.Process(proc.pid).children() if "resource_tracker" not in " ".join(c.cmdline())]
     assert workers, "no worker started"
-    time.sleep(3)  # the worker is inside its cell now
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     gone, alive = psutil.wait_procs(workers, timeout=15)
