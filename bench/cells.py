@@ -20,11 +20,12 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.matrix import Cell, task_subset
+from fixbench.bench.store import SCHEMA_VERSION, TRACE_COLUMNS
 from fixbench.cases.problem import Problem
+from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
 from fixbench.cases.spec import load_case_spec
 
 _PROBLEMS: dict[tuple, Problem] = {}
-REFERENCE_OPTIMAL_REWARD = 0.7854  # the reference code's stand-in for the optimal step reward (~pi/4)
 
 
 def fixbench_version() -> str:
@@ -149,7 +150,7 @@ def metrics(result, reference: dict | None) -> dict:
 
 
 def base_row(cell: Cell) -> dict:
-    return {"schema": 1, "cell": cell.id, "planner": cell.planner, "config": json.dumps(dict(cell.config)),
+    return {"schema": SCHEMA_VERSION, "cell": cell.id, "planner": cell.planner, "config": json.dumps(dict(cell.config)),
             "label": cell.label, "case": cell.case, "agents": cell.agents, "mode": cell.mode,
             "budget": math.nan if cell.budget is None else cell.budget, "seed": cell.seed,
             "samples_per_task": math.nan if cell.samples_per_task is None else cell.samples_per_task,
@@ -185,7 +186,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
                    layouts=json.dumps(res.layouts.tolist()),
                    info=json.dumps({k: v for k, v in res.info.items() if not _is_curve(v)}, default=str),
                    **metrics(res, reference))
-        trace = pd.DataFrame(res.trace, columns=["task", "task_samples", "samples", "best"]).to_dict("list")
+        trace = pd.DataFrame(res.trace, columns=list(TRACE_COLUMNS)).to_dict("list")
         curves = _curves(res.info)
     except Exception as exc:  # a failing run is a row with its error, not a crash of the matrix
         row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]

@@ -23,6 +23,7 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator  # noqa: E
 
 from fixbench.bench.plots import outline  # noqa: E402
 from fixbench.bench.stats import BOOT_SEED, TARGETS, on_grid, ref_key, runtime, sample_grid  # noqa: E402
+from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD  # noqa: E402
 
 #: relative regrets (%) below this are drawn at it on log axes (a regret of 0 has no logarithm)
 REGRET_FLOOR_PCT = 1e-3
@@ -290,7 +291,8 @@ def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
         _median_band(ax_c2, true_reg, 1, col, lab)
     ax_a.set(xlabel="training step", ylabel="step reward (Gaussian)", title="(a) step reward")
     ax_b.set(xlabel="episode", ylabel="episodic return", title="(b) episodic return")
-    ax_c.set(xlabel="episode", ylabel="N T 0.7854 - N sum r", title="(c) episodic regret (reference code)")
+    ax_c.set(xlabel="episode", ylabel=f"N T {REFERENCE_OPTIMAL_REWARD:g} - N sum r",
+             title="(c) episodic regret (reference code)")
     ax_c2.set(xlabel="episode", ylabel="sum of (max |u| - u*) (um)",
               title=f"(c) episodic true regret vs {' / '.join(sorted(true_src)) or '-'}")
     for ax in (ax_a, ax_b, ax_c, ax_c2):

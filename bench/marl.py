@@ -9,7 +9,7 @@
 
 ``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
-N T 0.7854 - N sum r, and the true regret against the best layout seen) against episode, and (d) a
+N T r* - N sum r, and the true regret against the best layout seen) against episode, and (d) a
 violin plot of the percentage difference in max deformation of every layout tried in training from
 the best one seen on its task, one line and one violin per run (e.g. per agent count). ``speed``
 runs the full protocol once and reports the wall time split into oracle, action selection and

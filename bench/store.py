@@ -4,7 +4,7 @@ Layout of a run directory::
 
     DIR/matrix.toml                 the matrix that was run (copied at the start)
     DIR/rows/<cell id>.json         one flat row per finished cell (see ROW_SCHEMA)
-    DIR/traces/<cell id>.parquet    anytime trace: task, task_samples, samples, best
+    DIR/traces/<cell id>.parquet    anytime trace: TRACE_COLUMNS (task, task_samples, samples, best)
     DIR/curves/<cell id>.parquet    training curves of learners: curve, index, value (long form)
     DIR/reference/<key>.json        regret reference per (case, material, agents, tasks)
 
@@ -36,7 +36,12 @@ import pandas as pd
 
 from fixbench.cases.errors import CaseError
 
+#: the version every row is written with (``schema``) and every row read is checked against
 SCHEMA_VERSION = 1
+#: columns of an anytime trace (``DIR/traces/<cell id>.parquet``), as written and as read: after the planner
+#: had spent ``task_samples`` on ``task`` (``samples`` in all), the best max deformation it had seen there
+#: was ``best``
+TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
 
 #: column -> meaning (README "Results" documents the same table)
 ROW_SCHEMA = {
@@ -239,12 +244,13 @@ def load_results(root: str | Path) -> pd.DataFrame:
     return df
 
 
-def _load_parquets(root: str | Path, folder: str) -> pd.DataFrame:
-    """Every cell's Parquet file in ``DIR/folder`` as one frame with a ``cell`` column."""
+def _load_parquets(root: str | Path, folder: str, columns: tuple[str, ...] | None = None) -> pd.DataFrame:
+    """Every cell's Parquet file in ``DIR/folder`` as one frame with a ``cell`` column (only ``columns``
+    when given; a file without them is damaged)."""
     frames = []
     for p in sorted((Path(root) / folder).glob("*.parquet")):
         try:
-            df = pd.read_parquet(p)
+            df = pd.read_parquet(p, columns=None if columns is None else list(columns))
         except Exception as exc:  # pyarrow raises several kinds on a damaged file
             warn(f"{p}: damaged ({type(exc).__name__}); skipped")
             continue
@@ -254,8 +260,8 @@ def _load_parquets(root: str | Path, folder: str) -> pd.DataFrame:
 
 
 def load_traces(root: str | Path) -> pd.DataFrame:
-    """All anytime traces (task, task_samples, samples, best) with their cell id."""
-    return _load_parquets(root, "traces")
+    """All anytime traces (``TRACE_COLUMNS``) with their cell id."""
+    return _load_parquets(root, "traces", TRACE_COLUMNS)
 
 
 def load_curves(root: str | Path) -> pd.DataFrame:

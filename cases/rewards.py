@@ -10,6 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The reference code's stand-in for the optimal step reward (about pi/4): its regret of an episode of
+#: T steps with N agents is N T REFERENCE_OPTIMAL_REWARD - N sum(step rewards)
+#: (docs/protocol.md#reference-regret).
+REFERENCE_OPTIMAL_REWARD = 0.7854
+
 
 def gaussian(dx: np.ndarray, dz: np.ndarray, sigma_x: float, sigma_z: float) -> np.ndarray:
     """Seed paper: exp(-dx^2 / (2 sx^2) - dz^2 / (2 sz^2)), in [0, 1]."""

@@ -32,7 +32,8 @@ if the budget is smaller, for as many full episodes as fit (best effort; ``info[
 if not even one episode fits, :class:`PlannerError`. The returned layouts are the greedy policy's
 (epsilon = 0, no samples) for every task, training tasks and held-out tasks alike.
 
-Regret (``info``): ``episode_regret_ref`` is the reference's N T 0.7854 - N sum(step rewards);
+Regret (``info``): ``episode_regret_ref`` is the reference's N T r* - N sum(step rewards), with r* its
+stand-in for the optimal step reward, :data:`fixbench.cases.rewards.REFERENCE_OPTIMAL_REWARD` (0.7854);
 ``episode_regret_true`` is sum over the episode's steps of (max_u - u*) in metres, with u* the
 task's optimum from ``Config.optima`` when given, else the best max_u the run itself saw on the
 task; ``episode_regret_reward`` is sum of (r* - r) with r* the best reward seen on the task.
@@ -50,6 +51,7 @@ import torch
 
 from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
+from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from fixbench.solvers.marl_engine import Learner, Update
 from fixbench.solvers.registry import register
@@ -201,7 +203,7 @@ class _QPlanner(Planner):
             "step_max_u": u_arr.tolist(),
             "step_task": task_arr.tolist(),
             "episode_return": ep_return,
-            "episode_regret_ref": [n * n_train * 0.7854 - n * r for r in ep_return],
+            "episode_regret_ref": [n * n_train * REFERENCE_OPTIMAL_REWARD - n * r for r in ep_return],
             "episode_regret_true": per_ep(u_arr - u_star[task_arr]),
             "episode_regret_reward": per_ep(best_r[task_arr] - rew_arr),
             "regret_reference": "optima" if cfg.optima else "best seen in run",
