@@ -22,6 +22,8 @@ bench: setup
 	$(BIN)/fixbench validate
 	$(BIN)/fixbench run bench/matrices/default.toml --out results/default
 	$(BIN)/fixbench report results/default
+	$(BIN)/fixbench export results/default --format iohprofiler
+	$(BIN)/fixbench export results/default --format marl-eval
 
 test: setup
 	$(BIN)/ruff check .
