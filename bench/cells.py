@@ -1,7 +1,8 @@
 """What a worker runs: regret references and matrix cells (no file I/O; results go back to the driver).
 
-Problems are cached per process, so a worker that runs many cells of one case builds its FE model
-and oracle once.
+A worker asks the process's problem cache for each cell's problem
+(:func:`fixbench.cases.problem.cached_problem`), so that one running many cells of one case builds its FE
+model and oracle once.
 """
 
 from __future__ import annotations
@@ -21,11 +22,9 @@ import pandas as pd
 
 from fixbench.bench.matrix import Cell, task_subset
 from fixbench.bench.store import SCHEMA_VERSION, TRACE_COLUMNS
-from fixbench.cases.problem import Problem
+from fixbench.cases.problem import Problem, cached_problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
 from fixbench.cases.spec import load_case_spec
-
-_PROBLEMS: dict[tuple, Problem] = {}
 
 
 def fixbench_version() -> str:
@@ -36,14 +35,13 @@ def fixbench_version() -> str:
 
 
 def problem_for(case: str, material: str | None, agents: int | None, tasks: int | None) -> Problem:
-    """The cell's problem; the worker keeps only the latest one (jobs arrive grouped by problem)."""
-    key = (case, material, agents, tasks)
-    if key not in _PROBLEMS:
-        _PROBLEMS.clear()
+    """The cell's problem (``tasks`` of the case's tasks, spread evenly; all when None) from the process's
+    problem cache, which keeps the latest one only (jobs arrive grouped by problem)."""
+    def build() -> Problem:
         spec = load_case_spec(case, material, agents)
-        spec = spec.with_tasks(task_subset(len(spec.tasks), tasks))
-        _PROBLEMS[key] = Problem(spec)
-    return _PROBLEMS[key]
+        return Problem(spec.with_tasks(task_subset(len(spec.tasks), tasks)))
+
+    return cached_problem((case, material, agents, tasks), build)
 
 
 def reference_key(case: str, material: str | None, agents: int | None, tasks: int | None) -> str:

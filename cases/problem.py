@@ -19,6 +19,7 @@ import hashlib
 import math
 import pickle
 from collections import OrderedDict
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -31,11 +32,15 @@ from fixbench.cases.fem import PlateModel
 from fixbench.cases.oracle import Oracle
 from fixbench.cases.spec import CaseSpec, load_case_spec
 
-#: models and oracles are cached per spec content in a process; only the most recently used few
-#: are kept (a benchmark worker moves from problem to problem; memory must not grow with them)
+#: The process's cache, the one place where problems, models and oracles are kept between calls:
+#: models and oracles by spec content (problems that differ only in their agents share them), the
+#: CACHE_SIZE most recently used of each, and the latest problem asked for by name
+#: (:func:`cached_problem`). A benchmark worker moves from problem to problem and its memory must
+#: not grow with them: a wing spar's oracle data is 3 GB.
 CACHE_SIZE = 3
 _MODELS: OrderedDict[str, PlateModel] = OrderedDict()
 _ORACLES: OrderedDict[str, Oracle] = OrderedDict()
+_LATEST: dict[Hashable, Problem] = {}
 
 
 def set_cache_size(n: int) -> None:
@@ -56,6 +61,22 @@ def _cached(cache: OrderedDict, key: str, build):
             cache.popitem(last=False)
         cache[key] = build()
     return cache[key]
+
+
+def cached_problem(key: Hashable, build: Callable[[], Problem]) -> Problem:
+    """The problem the caller names ``key``: the one kept from the previous call if that had the same
+    key, else ``build()``, kept in its place.
+
+    Bound: one problem, the latest (a benchmark worker gets its jobs grouped by problem). A problem
+    holds its model and oracle once built, so keeping more problems would keep more than CACHE_SIZE
+    models and oracles alive; the cache lets the old problem go before it builds the new one, so that
+    it never holds both. A problem built again finds its model and oracle in their caches while they
+    are kept there.
+    """
+    if key not in _LATEST:
+        _LATEST.clear()
+        _LATEST[key] = build()
+    return _LATEST[key]
 
 
 @dataclass(frozen=True)
