@@ -7,7 +7,7 @@ learners' training curves and the regret references. The report folder gets
     tables/<name>.csv|.tex|.md  every table: CSV with plain numbers, LaTeX and Markdown formatted
     figures/<name>.png|.pdf     every figure
 
-Statistics follow the conventions of REFERENCE.md section 7: means and rliable-style interquartile
+Statistics follow the conventions of docs/reporting.md: means and rliable-style interquartile
 means with 95 % stratified percentile-bootstrap confidence intervals (strata: the problems, i.e.
 materials, agents and task counts; resampled over seeds), COCO-style runtime-to-target ECDFs and
 Dolan-More performance profiles. Cells whose row carries an error are counted in ``failed`` and left

@@ -4,7 +4,7 @@ Read top to bottom (cleanrl style): hyper-parameters, the training loop on the P
 greedy policy, the two planners. The engine that makes it fast (batched Q-networks, fused optimiser,
 compiled best response) lives beside it in :mod:`fixbench.solvers.marl_engine`.
 
-The game (REFERENCE section 5): each step shows the agents one task (its feature vector); each agent
+The game (docs/protocol.md#the-game): each step shows the agents one task (its feature vector); each agent
 picks one candidate of its own set; the layout is evaluated once on the counted oracle (one sample
 per step, through :class:`fixbench.cases.env.FixtureEnv`) and every agent gets the same reward. One episode is
 one pass over the training tasks. Defaults equal the seed's Table I: 100 episodes, epsilon
