@@ -259,13 +259,17 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
               help="Report folder (default: RUN_DIR/report).")
 @click.option("--no-fields", is_flag=True,
               help="Skip the deformation-field pictures (they rebuild each case's FE model).")
-def report(run_dir, out, no_fields) -> None:
+@click.option("--readme", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Also refresh this README's copies of the report's tables (its <!-- table: PATH --> blocks).")
+def report(run_dir, out, no_fields, readme) -> None:
     """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR."""
-    from fixbench.bench.report import make_report
+    from fixbench.bench.report import make_report, refresh_readme
 
     res = make_report(run_dir, out, fields=not no_fields)
     click.echo(f"wrote {res['report']} ({len(res['tables'])} tables, {len(res['figures'])} figures"
                + (f", {len(res['notes'])} skipped" if res["notes"] else "") + ")")
+    if readme is not None:
+        click.echo(f"refreshed {refresh_readme(readme, res['report'].parent)} tables in {readme}")
 
 
 @cli.command()

@@ -8,6 +8,8 @@
     heldout_table       held-out track: regret on the held-out tasks of learners that trained on the others,
                         beside planners that pay samples on every task, scored on the same tasks
     improvement_table   rliable's probability of improvement P(X < Y) between every ordered pair of planners
+    versus_best_table   P(X < best) of every planner against the one ranked first, per column of the main
+                        table (the README's second table: can anything beat the best?)
 
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
@@ -247,3 +249,37 @@ def show_main(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
     out["mean rank"] = table["mean_rank"].map(lambda v: fmt(v, 3))
     out["problems"] = table["problems"]
     return out
+
+
+def versus_best_table(rows: pd.DataFrame, main: pd.DataFrame,
+                      exclude: Sequence[str] = ()) -> tuple[pd.DataFrame, str]:
+    """rliable's probability of improvement P(X < best) of every other planner label X against the label
+    ranked first in the main table (``exclude``: labels that are not contenders, e.g. the reference
+    planner ``exact``), per main-table column (case, and mode when several; all budgets pooled as
+    there), with its 95 % CI and the cells of each side. Returns the table (columns ``<name>``,
+    ``<name>_lo``, ``<name>_hi``, ``<name>_cells``, in main-table order) and the best label."""
+    contenders = [str(p) for p in main["planner"] if p not in exclude]
+    best = contenders[0]
+    scored = _scored(rows)
+    recs = []
+    for label in contenders[1:]:
+        rec = {"planner": label}
+        for name, case, mode in main_columns(rows):
+            pick = scored["case"] == case
+            if mode is not None:
+                pick &= scored["mode"].fillna("per-task") == mode
+            x = scored.loc[pick & (scored["label"] == label), "regret_pct"].to_numpy()
+            y = scored.loc[pick & (scored["label"] == best), "regret_pct"].to_numpy()
+            p, lo, hi = probability_of_improvement(x, y) if len(x) and len(y) else (np.nan,) * 3
+            rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi, f"{name}_cells": f"{len(x)} vs {len(y)}"})
+        recs.append(rec)
+    return pd.DataFrame(recs), best
+
+
+def show_versus_best(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
+    """The versus-best table formatted like the main table: ``P [lo, hi] (cells)`` per column."""
+    out = pd.DataFrame({"planner": table["planner"]})
+    for name in columns:
+        out[name] = [f"{t} ({c})" for t, c in zip(ci_column(table, name), table[f"{name}_cells"])]
+    return out
+

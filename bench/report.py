@@ -45,7 +45,9 @@ from fixbench.bench.comparison import (  # noqa: E402
     show_improvement,
     show_main,
     show_sweep,
+    show_versus_best,
     sweep_table,
+    versus_best_table,
 )
 from fixbench.bench.figures import (  # noqa: E402
     REFERENCE_PLANNER,
@@ -189,6 +191,16 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
             "the mean rank over problems (case x material x seed x agents x tasks x mode x budget or samples "
             "a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its own "
             "budget competes at every budget); sorted by mean rank.")
+    if (~table["planner"].isin([REFERENCE_PLANNER])).sum() < 2:
+        return
+    versus, best = versus_best_table(rows, table, exclude=(REFERENCE_PLANNER,))
+    columns = [name for name, _, _ in main_columns(rows)]
+    w.table("versus_best", versus, show_versus_best(versus, columns),
+            f"Against the best: P(X < {best}), the chance that a random cell of each planner ends with a lower "
+            f"relative regret than a random cell of `{best}` (ranked first in the main table after the "
+            f"reference planner `{REFERENCE_PLANNER}`), per column of "
+            "the main table, with a 95 % percentile-bootstrap CI and the cells of each side (rliable's "
+            "probability of improvement; ties count 1/2). 0.5: as good; 0: never better.")
 
 
 def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
@@ -227,6 +239,35 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
                 f"{', '.join(['case', *group])}, with a 95 % percentile-bootstrap CI over "
                 "both planners' cells.")
     return sweep
+
+
+#: a README block that mirrors a report table: ``<!-- table: PATH -->`` ... ``<!-- /table -->``
+TABLE_BLOCK = re.compile(r"(<!-- table: (?P<path>[^ ]+) -->\n)(?P<body>.*?)(<!-- /table -->)", re.S)
+
+
+def refresh_readme(readme: str | Path, report_dir: str | Path) -> int:
+    """Copy every table of ``report_dir`` that ``readme`` mirrors (its ``<!-- table: PATH -->`` blocks,
+    PATH relative to the README) into it; returns how many blocks were refreshed. A block naming a
+    table of this report that does not exist is an error (the README would show a stale table)."""
+    readme, report_dir = Path(readme), Path(report_dir).resolve()
+    text, n = readme.read_text(encoding="utf-8"), 0
+
+    def swap(m: re.Match) -> str:
+        nonlocal n
+        path = (readme.parent / m["path"]).resolve()
+        if report_dir not in path.parents:
+            return m[0]
+        if not path.is_file():
+            raise CaseError(str(readme), m["path"], "the report has no such table")
+        n += 1
+        return m[1] + path.read_text(encoding="utf-8").rstrip("\n") + "\n" + m[4]
+
+    new = TABLE_BLOCK.sub(swap, text)
+    if new != text:
+        from fixbench.bench.store import write_text_atomic
+
+        write_text_atomic(readme, new)
+    return n
 
 
 def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool = True) -> dict:

@@ -52,3 +52,34 @@ def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
     _, rows = _rows("paper")
     assert np.isfinite(rows["relative_regret"].astype(float)).all()
     assert rows["reference_source"].str.len().gt(0).all()
+
+
+def test_readme_tables_are_the_committed_reports():
+    """Every README table that mirrors a report table (``<!-- table: PATH -->`` blocks) is that table
+    as committed: `fixbench report DIR --readme README.md` refreshes them with the report."""
+    from fixbench.bench.report import TABLE_BLOCK
+
+    readme = ROOT.parent / "README.md"
+    blocks = list(TABLE_BLOCK.finditer(readme.read_text(encoding="utf-8")))
+    assert blocks, "README mirrors no report table"
+    for m in blocks:
+        path = readme.parent / m["path"]
+        assert path.is_file(), m["path"]
+        assert m["body"] == path.read_text(encoding="utf-8").rstrip("\n") + "\n", f"{m['path']}: README is stale"
+
+
+def test_refresh_readme_copies_only_this_reports_tables(tmp_path):
+    from fixbench.bench.report import refresh_readme
+    from fixbench.cases.errors import CaseError
+
+    (tmp_path / "run" / "report" / "tables").mkdir(parents=True)
+    (tmp_path / "run" / "report" / "tables" / "main.md").write_text("| a |\n|---|\n| 1 |\n")
+    readme = tmp_path / "README.md"
+    other = "<!-- table: elsewhere/main.md -->\nold\n<!-- /table -->\n"
+    readme.write_text("# x\n<!-- table: run/report/tables/main.md -->\nstale\n<!-- /table -->\ntext\n" + other)
+    assert refresh_readme(readme, tmp_path / "run" / "report") == 1
+    assert readme.read_text() == ("# x\n<!-- table: run/report/tables/main.md -->\n| a |\n|---|\n| 1 |\n"
+                                  "<!-- /table -->\ntext\n" + other)
+    readme.write_text("<!-- table: run/report/tables/gone.md -->\n<!-- /table -->\n")
+    with pytest.raises(CaseError, match="no such table"):
+        refresh_readme(readme, tmp_path / "run" / "report")
