@@ -263,7 +263,8 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
               help="Also refresh this README's copies of the report's tables (its <!-- table: PATH --> blocks).")
 def report(run_dir, out, no_fields, readme) -> None:
     """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR."""
-    from fixbench.bench.report import make_report, refresh_readme
+    from fixbench.bench.report import make_report
+    from fixbench.bench.tables import refresh_readme
 
     res = make_report(run_dir, out, fields=not no_fields)
     click.echo(f"wrote {res['report']} ({len(res['tables'])} tables, {len(res['figures'])} figures"

@@ -98,7 +98,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.store import ROW_SCHEMA, load_curves, load_results, load_traces
+from fixbench.bench.store import ROW_SCHEMA, TRACE_COLUMNS, load_curves, load_results, load_traces
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
@@ -254,7 +254,7 @@ def write_iohprofiler(rows: pd.DataFrame, traces: pd.DataFrame, out: Path) -> di
     skipped["no samples"] = int(zero.sum())
     ok = ok[~zero]
     by_cell = {c: g for c, g in traces.groupby("cell", sort=False)} if not traces.empty else {}
-    empty = pd.DataFrame(columns=["task", "task_samples", "samples", "best"])
+    empty = pd.DataFrame(columns=list(TRACE_COLUMNS))
     fids = {key: i + 1 for i, key in enumerate(sorted(set(ok["problem"]), key=str))}
     folders: dict[str, str] = {}
     runs = 0
@@ -431,7 +431,7 @@ def strict_json(data) -> str:
 
 def write_csv(rows: pd.DataFrame, traces: pd.DataFrame, curves: pd.DataFrame, out: Path) -> dict:
     rows[list(ROW_SCHEMA)].to_csv(out / "rows.csv", index=False)
-    cols = ["cell", "task", "task_samples", "samples", "best"]
+    cols = ["cell", *TRACE_COLUMNS]
     tr = traces[cols].copy() if not traces.empty else pd.DataFrame(columns=cols)
     for c in ("task", "task_samples", "samples"):
         tr[c] = tr[c].astype(np.int64)

@@ -241,35 +241,6 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
     return sweep
 
 
-#: a README block that mirrors a report table: ``<!-- table: PATH -->`` ... ``<!-- /table -->``
-TABLE_BLOCK = re.compile(r"(<!-- table: (?P<path>[^ ]+) -->\n)(?P<body>.*?)(<!-- /table -->)", re.S)
-
-
-def refresh_readme(readme: str | Path, report_dir: str | Path) -> int:
-    """Copy every table of ``report_dir`` that ``readme`` mirrors (its ``<!-- table: PATH -->`` blocks,
-    PATH relative to the README) into it; returns how many blocks were refreshed. A block naming a
-    table of this report that does not exist is an error (the README would show a stale table)."""
-    readme, report_dir = Path(readme), Path(report_dir).resolve()
-    text, n = readme.read_text(encoding="utf-8"), 0
-
-    def swap(m: re.Match) -> str:
-        nonlocal n
-        path = (readme.parent / m["path"]).resolve()
-        if report_dir not in path.parents:
-            return m[0]
-        if not path.is_file():
-            raise CaseError(str(readme), m["path"], "the report has no such table")
-        n += 1
-        return m[1] + path.read_text(encoding="utf-8").rstrip("\n") + "\n" + m[4]
-
-    new = TABLE_BLOCK.sub(swap, text)
-    if new != text:
-        from fixbench.bench.store import write_text_atomic
-
-        write_text_atomic(readme, new)
-    return n
-
-
 def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool = True) -> dict:
     """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``).
 

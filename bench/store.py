@@ -35,13 +35,10 @@ from pathlib import Path
 import pandas as pd
 
 from fixbench.cases.errors import CaseError
+from fixbench.solvers.base import TRACE_COLUMNS
 
 #: the version every row is written with (``schema``) and every row read is checked against
 SCHEMA_VERSION = 1
-#: columns of an anytime trace (``DIR/traces/<cell id>.parquet``), as written and as read: after the planner
-#: had spent ``task_samples`` on ``task`` (``samples`` in all), the best max deformation it had seen there
-#: was ``best``
-TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
 
 #: column -> meaning (README "Results" documents the same table)
 ROW_SCHEMA = {

@@ -10,11 +10,14 @@ summary); the comparison tables (main, sweep, held-out, probability of improveme
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from fixbench.bench.stats import SETTINGS, bootstrap_ci, iqm
+from fixbench.cases.errors import CaseError
 
 # formatting ------------------------------------------------------------------------------------------
 
@@ -137,3 +140,34 @@ def profile_table(ratios: pd.DataFrame, rho: dict) -> pd.DataFrame:
                          "within 1.1": [float((ratios[k] <= 1.1).mean()) for k in rho],
                          "within 2": [float((ratios[k] <= 2).mean()) for k in rho],
                          "failed or missing": [float((~np.isfinite(ratios[k])).mean()) for k in rho]})
+
+
+# the README's copies of report tables -----------------------------------------------------------------
+
+#: a README block that mirrors a report table: ``<!-- table: PATH -->`` ... ``<!-- /table -->``
+TABLE_BLOCK = re.compile(r"(<!-- table: (?P<path>[^ ]+) -->\n)(?P<body>.*?)(<!-- /table -->)", re.S)
+
+
+def refresh_readme(readme: str | Path, report_dir: str | Path) -> int:
+    """Copy every table of ``report_dir`` that ``readme`` mirrors (its ``<!-- table: PATH -->`` blocks,
+    PATH relative to the README) into it; returns how many blocks were refreshed. A block naming a
+    table of this report that does not exist is an error (the README would show a stale table)."""
+    readme, report_dir = Path(readme), Path(report_dir).resolve()
+    text, n = readme.read_text(encoding="utf-8"), 0
+
+    def swap(m: re.Match) -> str:
+        nonlocal n
+        path = (readme.parent / m["path"]).resolve()
+        if report_dir not in path.parents:
+            return m[0]
+        if not path.is_file():
+            raise CaseError(str(readme), m["path"], "the report has no such table")
+        n += 1
+        return m[1] + path.read_text(encoding="utf-8").rstrip("\n") + "\n" + m[4]
+
+    new = TABLE_BLOCK.sub(swap, text)
+    if new != text:
+        from fixbench.bench.store import write_text_atomic
+
+        write_text_atomic(readme, new)
+    return n

@@ -30,6 +30,10 @@ from fixbench.cases.errors import CaseError, FixbenchError
 from fixbench.cases.problem import Deformation, Evaluator, Problem
 
 MODES = ("per-task", "shared")
+#: columns of an anytime trace (:class:`TracedEvaluator`; stored by the harness as they are): after the
+#: planner had spent ``task_samples`` on ``task`` (``samples`` in all), the best max deformation it had
+#: seen there was ``best``
+TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
 
 
 class PlannerError(FixbenchError):
@@ -54,7 +58,7 @@ class TracedEvaluator(Evaluator):
     ``task`` was ``best``. Shared mode adds rows with task -1 and the worst-over-tasks objective.
     """
 
-    TRACE_COLUMNS = ("task", "task_samples", "samples", "best")
+    TRACE_COLUMNS = TRACE_COLUMNS
 
     def __init__(self, problem: Problem, budget: int | None, tasks=None):
         super().__init__(problem, budget, tasks)

@@ -57,7 +57,7 @@ def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
 def test_readme_tables_are_the_committed_reports():
     """Every README table that mirrors a report table (``<!-- table: PATH -->`` blocks) is that table
     as committed: `fixbench report DIR --readme README.md` refreshes them with the report."""
-    from fixbench.bench.report import TABLE_BLOCK
+    from fixbench.bench.tables import TABLE_BLOCK
 
     readme = ROOT.parent / "README.md"
     blocks = list(TABLE_BLOCK.finditer(readme.read_text(encoding="utf-8")))
@@ -69,7 +69,7 @@ def test_readme_tables_are_the_committed_reports():
 
 
 def test_refresh_readme_copies_only_this_reports_tables(tmp_path):
-    from fixbench.bench.report import refresh_readme
+    from fixbench.bench.tables import refresh_readme
     from fixbench.cases.errors import CaseError
 
     (tmp_path / "run" / "report" / "tables").mkdir(parents=True)
