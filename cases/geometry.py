@@ -8,16 +8,18 @@ size field needs. gmsh would add a large native dependency for features a 2-D pl
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import shapely
 import shapely.affinity
 import shapely.ops
 import shapely.validation
-import triangle
-from scipy.spatial import cKDTree
-from skfem import MeshTri
 
 from fixbench.cases.errors import CaseError
+
+if TYPE_CHECKING:
+    from skfem import MeshTri
 
 
 def build_polygon(shapes, reader) -> shapely.Polygon:
@@ -46,6 +48,8 @@ def size_field(spec, points: np.ndarray) -> np.ndarray:
     """Target element size at ``points``: the global size, finer within the refinement bands."""
     h = np.full(len(points), spec.mesh.size)
     for ref in spec.mesh.refine:
+        from scipy.spatial import cKDTree
+
         dist, _ = cKDTree(ref.points).query(points)
         local = ref.size + spec.mesh.grading * np.maximum(0.0, dist - ref.width)
         h = np.minimum(h, local)
@@ -89,6 +93,9 @@ def make_mesh(spec, max_passes: int = 8) -> MeshTri:
     each triangle limited to the area of an equilateral triangle of the local target size, until
     every triangle meets its limit.
     """
+    import triangle  # mesh libraries: imported by the commands that mesh, not by every start
+    from skfem import MeshTri
+
     pslg = _pslg(spec)
     q = f"pq{spec.mesh.min_angle_deg:g}"
     area = lambda h: np.sqrt(3.0) / 4.0 * h**2  # noqa: E731 - equilateral triangle of side h

@@ -23,14 +23,17 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fixbench.cases import cache, rewards
 from fixbench.cases.errors import BudgetExhausted, CaseError, HeldOutTask
-from fixbench.cases.fem import PlateModel
-from fixbench.cases.oracle import Oracle
 from fixbench.cases.spec import CaseSpec, load_case_spec
+
+if TYPE_CHECKING:  # the FE code is imported when a model is first built (fast start of light commands)
+    from fixbench.cases.fem import PlateModel
+    from fixbench.cases.oracle import Oracle
 
 #: The process's cache, the one place where problems, models and oracles are kept between calls:
 #: models and oracles by spec content (problems that differ only in their agents share them), the
@@ -125,10 +128,14 @@ class Problem:
 
     @cached_property
     def model(self) -> PlateModel:
+        from fixbench.cases.fem import PlateModel
+
         return _cached(_MODELS, self._key(), lambda: PlateModel(self.spec))
 
     @cached_property
     def oracle(self) -> Oracle:
+        from fixbench.cases.oracle import Oracle
+
         key = self._key()
         return _cached(_ORACLES, key, lambda: Oracle(self.model, self.candidates, cache_key=cache.key(key)))
 
