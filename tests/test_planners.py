@@ -123,6 +123,9 @@ def test_listing_reads_the_builtins_without_importing_them():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     rows, heavy = json.loads(out)
     assert heavy == []
+    from fixbench.solvers.registry import BUILTIN
+
     imported = {n: {"planner": n, "description": c.description, "modes": list(c.modes), "module": c.__module__}
-                for n, c in available().items()}
-    assert {r["planner"]: r for r in rows} == imported
+                for n, c in available().items() if n in BUILTIN}  # this process may hold other tests' planners
+    assert {r["planner"]: r for r in rows if r["planner"] in BUILTIN} == imported
+    assert {r["planner"] for r in rows} >= set(BUILTIN)
