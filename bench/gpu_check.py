@@ -15,11 +15,11 @@ the ratio of their mean max deformations. It exits 2 without CUDA.
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
 
+import click
 import numpy as np
 
 
@@ -30,15 +30,17 @@ def _run(case: str, planner: str, seed: int, episodes: int, device: str, threads
     return json.loads(out)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.gpu_check", description=__doc__.split("\n")[0])
-    ap.add_argument("--case", default="wing_panel")
-    ap.add_argument("--planner", default="nashq")
-    ap.add_argument("--seeds", default="0,1")
-    ap.add_argument("--episodes", type=int, default=100)
-    ap.add_argument("--threads", type=int, default=2, help="torch threads of the CPU runs")
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
+PROG = "python -m fixbench.bench.gpu_check"
+
+
+@click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--case", default="wing_panel", show_default=True)
+@click.option("--planner", default="nashq", show_default=True)
+@click.option("--seeds", default="0,1", show_default=True)
+@click.option("--episodes", type=int, default=100, show_default=True)
+@click.option("--threads", type=int, default=2, show_default=True, help="torch threads of the CPU runs")
+@click.option("--json", "as_json", is_flag=True)
+def cli(case: str, planner: str, seeds: str, episodes: int, threads: int, as_json: bool) -> int:
     import torch
 
     if not torch.cuda.is_available():
@@ -46,10 +48,10 @@ def main(argv=None) -> int:
         return 2
     from scipy.stats import ks_2samp
 
-    seeds = [int(s) for s in args.seeds.split(",")]
-    runs = {dev: [_run(args.case, args.planner, s, args.episodes, dev, args.threads) for s in seeds]
+    seed_list = [int(s) for s in seeds.split(",")]
+    runs = {dev: [_run(case, planner, s, episodes, dev, threads) for s in seed_list]
             for dev in ("cuda", "cpu")}
-    summary = {"case": args.case, "planner": args.planner, "seeds": seeds, "episodes": args.episodes,
+    summary = {"case": case, "planner": planner, "seeds": seed_list, "episodes": episodes,
                "gpu": torch.cuda.get_device_name(0)}
     for dev, rs in runs.items():
         summary[dev] = {k: float(np.mean([r[k] for r in rs])) for k in
@@ -60,12 +62,26 @@ def main(argv=None) -> int:
     summary["ks_statistic"], summary["ks_pvalue"] = float(ks.statistic), float(ks.pvalue)
     summary["mean_ratio_cuda_over_cpu"] = float(u["cuda"].mean() / u["cpu"].mean())
     summary["speedup_cuda_over_cpu"] = summary["cpu"]["wall_s"] / summary["cuda"]["wall_s"]
-    if args.json:
+    if as_json:
         print(json.dumps(summary, indent=1))
     else:
         for k, v in summary.items():
             print(f"{k:>26}: {v}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error
+    or no CUDA)."""
+    try:
+        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    return rv if isinstance(rv, int) else 0
 
 
 if __name__ == "__main__":

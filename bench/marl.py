@@ -24,12 +24,13 @@ before a run: it is a property of the problem, costs no samples and is shared by
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
+import click
 import numpy as np
 
 from fixbench.bench.figures import FIGURE4_CURVES, figure4_panels, palette
@@ -194,66 +195,97 @@ def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
     return best
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.marl", description=__doc__.split("\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    f = sub.add_parser("figure4")
-    f.add_argument("--case", default="wing_panel")
-    f.add_argument("--planner", default="nashq")
-    f.add_argument("--agents", default="5", help="comma-separated agent counts, one run each")
-    f.add_argument("--episodes", type=int, default=100)
-    f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--out", default="results/figures/marl")
-    s = sub.add_parser("speed")
-    s.add_argument("--case", default="wing_panel")
-    s.add_argument("--planner", default="nashq")
-    s.add_argument("--agents", type=int)
-    s.add_argument("--episodes", type=int, default=100)
-    s.add_argument("--threads", type=int, default=0)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--device", default="cpu", help="cpu or cuda")
-    s.add_argument("--json", action="store_true")
-    s.add_argument("--figures", help="also write this run's Figure 4 panels into this directory")
-    h = sub.add_parser("heldout")
-    h.add_argument("--case", default="wing_panel")
-    h.add_argument("--planner", default="nashq")
-    h.add_argument("--fraction", type=float, default=0.2)
-    h.add_argument("--episodes", type=int, default=100)
-    h.add_argument("--seed", type=int, default=0)
-    h.add_argument("--json", action="store_true")
-    t = sub.add_parser("table")
-    t.add_argument("--episodes", type=int, default=100)
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
+PROG = "python -m fixbench.bench.marl"
 
-    if args.cmd == "figure4":
-        from fixbench.solvers.registry import get
 
-        results = {}
-        for n in [int(x) for x in args.agents.split(",")]:
-            problem = load_problem(args.case, agents=n)
-            prepare(problem)
-            results[f"{args.planner} N={n}"] = get(args.planner)(episodes=args.episodes).solve(
-                problem, None, seed=args.seed)
-        for p in figure4(results, args.out):
-            print(f"wrote {p}")
-    elif args.cmd == "speed":
-        res = speed(args.case, args.planner, args.agents, args.episodes, seed=args.seed, threads=args.threads,
-                    figures=args.figures, device=args.device)
-        print(json.dumps(res, indent=1) if args.json else
-              "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()
-                        if not isinstance(v, list)))
+@click.group(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
+def cli() -> None:
+    pass
+
+
+@cli.command("figure4", short_help="Draw the report's Figure 4, one panel a file.")
+@click.option("--case", default="wing_panel", show_default=True)
+@click.option("--planner", default="nashq", show_default=True)
+@click.option("--agents", default="5", show_default=True, help="comma-separated agent counts, one run each")
+@click.option("--episodes", type=int, default=100, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", default="results/figures/marl", show_default=True)
+def figure4_cmd(case: str, planner: str, agents: str, episodes: int, seed: int, out: str) -> None:
+    """Draw the report's Figure 4 one panel a file, one line and one violin per agent count."""
+    from fixbench.solvers.registry import get
+
+    results = {}
+    for n in [int(x) for x in agents.split(",")]:
+        problem = load_problem(case, agents=n)
+        prepare(problem)
+        results[f"{planner} N={n}"] = get(planner)(episodes=episodes).solve(problem, None, seed=seed)
+    for p in figure4(results, out):
+        print(f"wrote {p}")
+
+
+@cli.command("speed", short_help="Run the reference protocol once; wall time and its split.")
+@click.option("--case", default="wing_panel", show_default=True)
+@click.option("--planner", default="nashq", show_default=True)
+@click.option("--agents", type=int)
+@click.option("--episodes", type=int, default=100, show_default=True)
+@click.option("--threads", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--device", default="cpu", show_default=True, help="cpu or cuda")
+@click.option("--json", "as_json", is_flag=True)
+@click.option("--figures", help="also write this run's Figure 4 panels into this directory")
+def speed_cmd(case: str, planner: str, agents: int | None, episodes: int, threads: int, seed: int, device: str,
+              as_json: bool, figures: str | None) -> None:
+    """Run the full protocol once and report the wall time split into oracle, action selection and network
+    updates."""
+    res = speed(case, planner, agents, episodes, seed=seed, threads=threads, figures=figures, device=device)
+    print(json.dumps(res, indent=1) if as_json else
+          "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()
+                    if not isinstance(v, list)))
+
+
+@cli.command("heldout", short_help="Learner's zero-sample layouts on held-out tasks vs planners.")
+@click.option("--case", default="wing_panel", show_default=True)
+@click.option("--planner", default="nashq", show_default=True)
+@click.option("--fraction", type=float, default=0.2, show_default=True)
+@click.option("--episodes", type=int, default=100, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--json", "as_json", is_flag=True)
+def heldout_cmd(case: str, planner: str, fraction: float, episodes: int, seed: int, as_json: bool) -> None:
+    """Train a learner on a fraction of the tasks and compare its zero-sample layouts on the other tasks
+    with planners that spend samples on each of them."""
+    _print_rows(heldout(case, planner, fraction, episodes, seed), as_json)
+
+
+@cli.command("table", short_help="nashq and iql against the proven optimum, *_small cases.")
+@click.option("--episodes", type=int, default=100, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--json", "as_json", is_flag=True)
+def table_cmd(episodes: int, seed: int, as_json: bool) -> None:
+    """Compare nashq and iql with the proven optimum on every *_small case."""
+    _print_rows(table(episodes, seed), as_json)
+
+
+def _print_rows(rows: list[dict], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(rows, indent=1))
     else:
-        rows = table(args.episodes, args.seed) if args.cmd == "table" else heldout(
-            args.case, args.planner, args.fraction, args.episodes, args.seed)
-        if args.json:
-            print(json.dumps(rows, indent=1))
-        else:
-            import pandas as pd
+        import pandas as pd
 
-            print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".4g"))
+        print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".4g"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
+    try:
+        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    return rv if isinstance(rv, int) else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

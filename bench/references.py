@@ -37,6 +37,7 @@ import datetime
 import time
 from dataclasses import asdict, dataclass, field
 
+import click
 import numpy as np
 
 from fixbench.cases.materials import MATERIALS
@@ -369,22 +370,36 @@ def check_small(cases: tuple[str, ...] = ("wing_panel_small", "wing_spar_small",
     return out
 
 
-def main(argv=None) -> None:
+PROG = "python -m fixbench.bench.references"
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("command", type=click.Choice(["check"]))
+@click.option("--json", "as_json", is_flag=True)
+def cli(command: str, as_json: bool) -> None:
     """``python -m fixbench.bench.references check [--json]``: the portfolio against proven optima."""
-    import argparse
     import json
 
-    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.references", description=main.__doc__)
-    ap.add_argument("command", choices=["check"])
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
-    rows = check_small(echo=lambda r: None if args.json else print(r))
-    if args.json:
+    rows = check_small(echo=lambda r: None if as_json else print(r))
+    if as_json:
         print(json.dumps(rows, indent=1))
     else:
         n, k = sum(r["tasks"] for r in rows), sum(r["reached"] for r in rows)
         print(f"optimum reached on {k} of {n} tasks ({100 * k / n:.1f} %)")
 
 
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
+    try:
+        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    return rv if isinstance(rv, int) else 0
+
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

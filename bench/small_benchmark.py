@@ -1,9 +1,9 @@
 """Exact optima of the ``*_small`` cases, and how close the search planners get at 2 % of it.
 
-Not a test: a closing-note benchmark. ``python -m fixbench.bench.small_benchmark [CASE ...]`` prints one
-row per case: set-up time (FE model and oracle), exact's wall time and its mean max deformation
-(per-task mode), then greedy's, GA's and PSO's mean over seeds of their gap in mean max deformation
-with a budget of 2 % of the enumeration's samples.
+Not a test: a closing-note benchmark. ``python -m fixbench.bench.small_benchmark [CASE ...]`` (default:
+the four ``*_small`` cases) prints one row per case: set-up time (FE model and oracle), exact's wall
+time and its mean max deformation (per-task mode), then greedy's, GA's and PSO's mean over seeds of
+their gap in mean max deformation with a budget of 2 % of the enumeration's samples.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import time
 
+import click
 import numpy as np
 
 from fixbench.cases import load_problem
@@ -39,7 +40,13 @@ def run(case: str) -> dict:
     return row
 
 
-def main(cases: list[str]) -> None:
+PROG = "python -m fixbench.bench.small_benchmark"
+
+
+@click.command(help=__doc__, context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("cases", nargs=-1, metavar="[CASE]...")
+def cli(cases: tuple[str, ...]) -> None:
+    cases = cases or CASES
     head = " | ".join(f"{n} gap %" for n in SEARCHERS)
     print(f"| case | joint x tasks | set-up s | exact s | optimum um | budget | {head} |")
     print("|---|---:|---:|---:|---:|---:|" + "---:|" * len(SEARCHERS))
@@ -50,5 +57,18 @@ def main(cases: list[str]) -> None:
               f"{r['optimum_um']:.4g} | {r['budget']} | {gaps} |", flush=True)
 
 
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
+    try:
+        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    return rv if isinstance(rv, int) else 0
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:] or list(CASES))
+    sys.exit(main())

@@ -12,13 +12,14 @@ Not a test: the figures go in closing notes and the README.
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import statistics
 import subprocess
 import sys
 import time
+
+import click
 
 COMMANDS = (("--help",), ("cases",), ("solvers",))
 
@@ -45,20 +46,34 @@ def measure(runs: int, baseline: list[str] | None) -> list[dict]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m fixbench.bench.startup", description=__doc__.split("\n")[0])
-    ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--baseline", help="Command prefix to compare with (default: a bare interpreter).")
-    ap.add_argument("--json", action="store_true")
-    a = ap.parse_args(argv)
-    rows = measure(a.runs, shlex.split(a.baseline) if a.baseline else None)
-    if a.json:
+PROG = "python -m fixbench.bench.startup"
+
+
+@click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--runs", type=int, default=7, show_default=True)
+@click.option("--baseline", help="Command prefix to compare with (default: a bare interpreter).")
+@click.option("--json", "as_json", is_flag=True)
+def cli(runs: int, baseline: str | None, as_json: bool) -> None:
+    rows = measure(runs, shlex.split(baseline) if baseline else None)
+    if as_json:
         print(json.dumps(rows, indent=1))
     else:
         for r in rows:
             print(f"{r['command']:>18}: {r['median_s']:.2f} s   baseline {r['baseline_median_s']:.2f} s   "
                   f"ratio {r['ratio']:.2f}   ({r['baseline']})")
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
+    try:
+        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    return rv if isinstance(rv, int) else 0
 
 
 if __name__ == "__main__":
