@@ -390,10 +390,12 @@ def cache_clear(path: Path | None) -> None:
     click.echo(f"removed {oracle_cache.clear(base)} entries from {base}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the CLI, turning user errors into one line and exit code 2."""
+def run_command(command: click.Command, argv: list[str] | None, prog_name: str) -> int:
+    """Run a click ``command`` on ``argv`` (default: ``sys.argv[1:]``) as fixbench runs every command
+    line: user errors (bad options, bad case or matrix files, numerical trouble, file-system faults)
+    become one line on stderr and exit code 2, Ctrl-C exit code 130; returns the exit code."""
     try:
-        rv = cli.main(args=argv, prog_name="fixbench", standalone_mode=False)
+        rv = command.main(args=argv, prog_name=prog_name, standalone_mode=False)
         if isinstance(rv, int) and not isinstance(rv, bool):  # click returns an Exit's code here
             return rv
     except click.exceptions.Exit as exc:
@@ -416,6 +418,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     return 0
 
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``fixbench``: :func:`run_command` on the command group."""
+    return run_command(cli, argv, "fixbench")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -65,15 +65,9 @@ def cli(runs: int, baseline: str | None, as_json: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    try:
-        rv = cli.main(args=argv, prog_name=PROG, standalone_mode=False)
-    except click.ClickException as exc:
-        exc.show()
-        return exc.exit_code
-    except click.Abort:
-        click.echo("aborted", err=True)
-        return 130
-    return rv if isinstance(rv, int) else 0
+    from fixbench.bench.cli import run_command
+
+    return run_command(cli, argv, PROG)
 
 
 if __name__ == "__main__":
