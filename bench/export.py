@@ -99,6 +99,7 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.store import ROW_SCHEMA, TRACE_COLUMNS, load_curves, load_results, load_traces
+from fixbench.bench.tables import config_text
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
@@ -148,7 +149,7 @@ def _algorithm_names(rows: pd.DataFrame) -> list[str]:
     """The report's label (the matrix entry's label, else the planner, with its config when one
     planner ran unlabelled under several configs); where one label ran on a problem under several
     budgets (a sweep), the budget is added: ``random @10/task``, ``random @600``."""
-    cfg = rows["config"].map(_config_text)
+    cfg = rows["config"].map(config_text)
     given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
     several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
     base = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
@@ -157,14 +158,6 @@ def _algorithm_names(rows: pd.DataFrame) -> list[str]:
               for s, b in zip(rows["samples_per_task"], rows["budget"])]
     counts = pd.DataFrame({"p": rows["problem"], "b": base, "e": effort}).groupby(["p", "b"])["e"].nunique()
     return [f"{b} {e}" if counts[(p, b)] > 1 else b for p, b, e in zip(rows["problem"], base, effort)]
-
-
-def _config_text(config) -> str:
-    try:
-        d = json.loads(config) if isinstance(config, str) and config else {}
-    except json.JSONDecodeError:
-        return str(config)
-    return ",".join(f"{k}={v}" for k, v in sorted(d.items()))
 
 
 def _nan(v) -> bool:

@@ -65,6 +65,7 @@ from fixbench.bench.figures import (  # noqa: E402
 from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
 from fixbench.bench.store import load_curves, load_results, load_traces  # noqa: E402
 from fixbench.bench.tables import (  # noqa: E402
+    config_text,
     group_keys,
     profile_table,
     reference_table,
@@ -88,14 +89,6 @@ def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "case"
 
 
-def _config_text(config) -> str:
-    try:
-        d = json.loads(config) if isinstance(config, str) and config else {}
-    except json.JSONDecodeError:
-        return str(config)
-    return ",".join(f"{k}={v}" for k, v in sorted(d.items()))
-
-
 def load_rows(run_dir: Path) -> pd.DataFrame:
     """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
     where the row has one, else the planner (with its config when the run has one planner under several
@@ -106,7 +99,7 @@ def load_rows(run_dir: Path) -> pd.DataFrame:
     rows["error"] = rows["error"].fillna("").astype(str)
     rows["ok"] = rows["error"] == ""
     rows["mode"] = rows["mode"].fillna("per-task")
-    cfg = rows["config"].map(_config_text)
+    cfg = rows["config"].map(config_text)
     given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
     several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
     rows["label"] = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)

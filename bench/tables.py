@@ -9,6 +9,7 @@ summary); the comparison tables (main, sweep, held-out, probability of improveme
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from pathlib import Path
@@ -33,6 +34,15 @@ def ci_text(p, lo, hi) -> str:
     if not np.isfinite(p):
         return "-"
     return f"{fmt(p)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def config_text(config) -> str:
+    """A row's planner config (JSON text) as ``key=value,...`` in key order; other text as it is."""
+    try:
+        d = json.loads(config) if isinstance(config, str) and config else {}
+    except json.JSONDecodeError:
+        return str(config)
+    return ",".join(f"{k}={v}" for k, v in sorted(d.items()))
 
 
 def ci_column(df: pd.DataFrame, name: str) -> list[str]:
