@@ -73,14 +73,24 @@ def test_shared_mode_charges_every_task(problem):
         LayoutProblem(problem, mode="shared", budget=problem.n_tasks - 1)
 
 
-def test_same_seed_same_run_and_pattern_search(problem):
+def test_same_seed_same_run(problem):
     runs = []
     for seed in (4, 4, 5):
         lp = LayoutProblem(problem, task=1, budget=120)
-        res = minimize(lp, PatternSearch(), ("n_eval", 120), seed=seed)
+        res = minimize(lp, integer_ga(20), ("n_eval", 120), seed=seed)
         runs.append((lp.layout(res.X).tolist(), float(res.F[0]), lp.samples))
     assert runs[0] == runs[1] and runs[0][2] <= 120
     assert runs[0][1] == pytest.approx(true_max(problem, 1, runs[0][0]), rel=1e-12)
+
+
+def test_pattern_search_runs_within_budget(problem):
+    # pymoo 0.6.2's PatternSearch draws its exploration order from an unseeded generator
+    # (exploration_move is called without the algorithm's random_state), so only the budget
+    # and the scoring are asserted here, not that one seed repeats.
+    lp = LayoutProblem(problem, task=1, budget=120)
+    res = minimize(lp, PatternSearch(), ("n_eval", 120), seed=4)
+    assert lp.samples <= 120
+    assert float(res.F[0]) == pytest.approx(true_max(problem, 1, lp.layout(res.X)), rel=1e-12)
 
 
 def test_inside_a_planner_on_its_own_evaluator(problem):
