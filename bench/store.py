@@ -11,12 +11,15 @@ Layout of a run directory::
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
 
-Integrity: a row carries its schema version, its cell id (equal to its file name) and ``row_sha1``,
-a SHA-1 of its own content. A row file that does not parse, is not a row, belongs to another cell,
-has another schema version or fails its checksum is *damaged*: :meth:`Store.finished` reports it in
-one line and (in a run) moves it to ``DIR/damaged/`` (never deletes it), so its cell is recomputed;
-``fixbench report`` skips and counts it. Rows written before checksums existed are checked by
-schema only. ``DIR/.lock`` is held (an OS file lock) by the one ``fixbench run`` writing there.
+Integrity: a row carries its schema version, its cell id (equal to its file name), ``row_sha1``, a
+SHA-1 of its own content, and ``trace_sha1`` / ``curves_sha1``, the SHA-1 of the bytes of its trace
+and curves files (written before the row). A row file that does not parse, is not a row, belongs
+to another cell, has another schema version or fails its checksum, or whose trace or curves file is
+missing or differs from its recorded SHA-1, is *damaged*: :meth:`Store.finished` reports it in one
+line and (in a run) moves it and its files to ``DIR/damaged/`` (never deletes them), so its cell is
+recomputed; ``fixbench report`` skips and counts it, and reads only the traces and curves of valid
+rows. Rows written before checksums existed are checked by schema only.
+``DIR/.lock`` is held (an OS file lock) by the one ``fixbench run`` writing there.
 """
 
 from __future__ import annotations
@@ -84,6 +87,8 @@ ROW_SCHEMA = {
 REQUIRED = {"cell": str, "planner": str, "case": str}
 OPTIONAL = {"schema": int, "mode": str, "error": str}
 CHECKSUM = "row_sha1"
+#: the row key holding the SHA-1 of each per-cell file, by folder
+FILE_CHECKSUMS = {"traces": "trace_sha1", "curves": "curves_sha1"}
 
 
 def _atomic(path: Path, suffix: str, write) -> None:
@@ -123,6 +128,10 @@ def row_checksum(row: dict) -> str:
     """SHA-1 of a row's content without its checksum (keys sorted; NaN written as JSON's NaN)."""
     body = {k: v for k, v in row.items() if k != CHECKSUM}
     return hashlib.sha1(json.dumps(body, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def file_sha1(path: Path) -> str:
+    return hashlib.sha1(path.read_bytes()).hexdigest()
 
 
 def check_row(row, cell_id: str) -> str:
@@ -168,15 +177,33 @@ class Store:
     def row_path(self, cell_id: str) -> Path:
         return self.root / "rows" / f"{cell_id}.json"
 
-    def finished(self, move_damaged: bool = False) -> dict[str, dict]:
-        """Valid rows already written, by cell id. Each damaged row file is reported in one line and,
-        with ``move_damaged``, moved to ``DIR/damaged/`` (its cell is then to do again);
+    def cell_files(self, cell_id: str) -> dict[str, Path]:
+        """The cell's Parquet files, by folder (they may not exist)."""
+        return {folder: self.root / folder / f"{cell_id}.parquet" for folder in FILE_CHECKSUMS}
+
+    def check_files(self, row: dict) -> str:
+        """Why the trace or curves file a valid row names does not match it ('' if they do; a row
+        without a recorded SHA-1 is not checked)."""
+        for folder, path in self.cell_files(row["cell"]).items():
+            want = row.get(FILE_CHECKSUMS[folder])
+            if not isinstance(want, str):
+                continue
+            if not path.is_file():
+                return f"its {folder} file {path.name} is missing"
+            if file_sha1(path) != want:
+                return f"its {folder} file {path.name} differs from the row's {FILE_CHECKSUMS[folder]}"
+        return ""
+
+    def finished(self, move_damaged: bool = False, quiet: bool = False) -> dict[str, dict]:
+        """Valid rows already written, by cell id. Each damaged row file (see module docstring) is
+        reported in one line (unless ``quiet``) and, with ``move_damaged``, moved to
+        ``DIR/damaged/`` with its trace and curves files (its cell is then to do again);
         ``self.damaged`` lists their paths."""
         out, self.damaged = {}, []
         for p in sorted((self.root / "rows").glob("*.json")):
             try:
                 row = json.loads(p.read_text(encoding="utf-8"))
-                why = check_row(row, p.stem)
+                why = check_row(row, p.stem) or self.check_files(row)
             except (ValueError, UnicodeDecodeError) as exc:
                 why = f"not JSON ({str(exc).splitlines()[0]})"
             if not why:
@@ -184,11 +211,15 @@ class Store:
                 continue
             self.damaged.append(p)
             if move_damaged:
-                dest = self.root / "damaged" / f"{p.name}.{time.strftime('%Y%m%dT%H%M%S')}"
+                stamp = time.strftime("%Y%m%dT%H%M%S")
+                dest = self.root / "damaged" / f"{p.name}.{stamp}"
                 dest.parent.mkdir(parents=True, exist_ok=True)
+                for folder, f in self.cell_files(p.stem).items():
+                    if f.is_file():
+                        os.replace(f, dest.parent / f"{folder}-{f.name}.{stamp}")
                 os.replace(p, dest)
                 warn(f"{p}: damaged ({why}); moved to {dest}, its cell will be recomputed")
-            else:
+            elif not quiet:
                 warn(f"{p}: damaged ({why}); skipped")
         return out
 
@@ -216,15 +247,17 @@ class Store:
             f.close()
 
     def write(self, row: dict, trace: pd.DataFrame | None, curves: pd.DataFrame | None) -> None:
-        """Traces first, the row last: a row on disk means the cell is complete."""
-        row = {k: v for k, v in row.items() if k != CHECKSUM}
+        """Traces first, the row last (with their SHA-1): a row on disk means the cell is complete."""
+        row = {k: v for k, v in row.items() if k != CHECKSUM and k not in FILE_CHECKSUMS.values()}
+        paths = self.cell_files(row["cell"])
+        for folder, frame in (("traces", trace), ("curves", curves)):
+            if frame is not None and len(frame):
+                write_parquet_atomic(paths[folder], frame)
+                row[FILE_CHECKSUMS[folder]] = file_sha1(paths[folder])
+            elif paths[folder].is_file():  # a stale file of an earlier attempt: not this row's
+                paths[folder].unlink()
         row[CHECKSUM] = row_checksum(row)
-        cid = row["cell"]
-        if trace is not None:
-            write_parquet_atomic(self.root / "traces" / f"{cid}.parquet", trace)
-        if curves is not None and len(curves):
-            write_parquet_atomic(self.root / "curves" / f"{cid}.parquet", curves)
-        write_json_atomic(self.row_path(cid), row)
+        write_json_atomic(self.row_path(row["cell"]), row)
 
     def reference_path(self, key: str) -> Path:
         return self.root / "reference" / f"{key}.json"
@@ -242,10 +275,14 @@ def load_results(root: str | Path) -> pd.DataFrame:
 
 
 def _load_parquets(root: str | Path, folder: str, columns: tuple[str, ...] | None = None) -> pd.DataFrame:
-    """Every cell's Parquet file in ``DIR/folder`` as one frame with a ``cell`` column (only ``columns``
-    when given; a file without them is damaged)."""
+    """The Parquet files in ``DIR/folder`` of every valid row (see :meth:`Store.finished`; a file
+    that does not match its row's SHA-1 is skipped with its row) as one frame with a ``cell`` column
+    (only ``columns`` when given; a file without them is damaged)."""
+    valid = Store(root).finished(quiet=True)
     frames = []
     for p in sorted((Path(root) / folder).glob("*.parquet")):
+        if p.stem not in valid:
+            continue
         try:
             df = pd.read_parquet(p, columns=None if columns is None else list(columns))
         except Exception as exc:  # pyarrow raises several kinds on a damaged file
@@ -257,10 +294,10 @@ def _load_parquets(root: str | Path, folder: str, columns: tuple[str, ...] | Non
 
 
 def load_traces(root: str | Path) -> pd.DataFrame:
-    """All anytime traces (``TRACE_COLUMNS``) with their cell id."""
+    """All anytime traces (``TRACE_COLUMNS``) of valid rows, with their cell id."""
     return _load_parquets(root, "traces", TRACE_COLUMNS)
 
 
 def load_curves(root: str | Path) -> pd.DataFrame:
-    """All learners' training curves (curve, index, value) with their cell id."""
+    """All learners' training curves (curve, index, value) of valid rows, with their cell id."""
     return _load_parquets(root, "curves")

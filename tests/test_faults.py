@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fixbench.bench.cli import main
 from fixbench.bench.runner import run_matrix
-from fixbench.bench.store import CHECKSUM, Store, load_results
+from fixbench.bench.store import CHECKSUM, Store, load_results, load_traces
 
 TINY = """
 name = "tiny"
@@ -70,14 +72,42 @@ def test_a_damaged_row_is_moved_aside_and_its_cell_recomputed(done_run, kind, ca
     err = capsys.readouterr().err
     assert summary["run"] == 1 and summary["damaged_moved"] == 1
     assert err.count("\n") == 1 and str(victim) in err and "moved to" in err
-    moved = list((out / "damaged").iterdir())
-    assert len(moved) == 1  # kept, never deleted
+    moved = sorted(p.name for p in (out / "damaged").iterdir())
+    assert sum(n.startswith(victim.name) for n in moved) == 1  # kept, never deleted (with its files)
     after = {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")}
     assert after.keys() == before.keys()
     assert all(after[c] == b for c, b in before.items() if c != victim.stem)  # the others untouched
     assert json.loads(after[victim.stem]) == json.loads(before[victim.stem]) | {"wall_s": json.loads(
         after[victim.stem])["wall_s"], "cpu_s": json.loads(after[victim.stem])["cpu_s"],
         "setup_s": json.loads(after[victim.stem])["setup_s"], CHECKSUM: json.loads(after[victim.stem])[CHECKSUM]}
+
+
+@pytest.mark.parametrize("kind", ["truncated", "edited", "missing"])
+def test_a_damaged_trace_damages_its_row(done_run, kind, capsys):
+    m, out, before = done_run
+    cell = sorted(before)[0]
+    trace = out / "traces" / f"{cell}.parquet"
+    original = trace.read_bytes()
+    assert json.loads(before[cell])["trace_sha1"] == hashlib.sha1(original).hexdigest()
+    if kind == "truncated":
+        trace.write_bytes(original[: len(original) // 2])
+    elif kind == "edited":  # a valid Parquet file, with a value that was not measured
+        df = pd.read_parquet(trace)
+        df.loc[df.index[-1], "best"] /= 2
+        df.to_parquet(trace, index=False)
+    else:
+        trace.unlink()
+    assert len(load_results(out)) == 3 and cell not in set(load_traces(out)["cell"])  # report: skipped
+    capsys.readouterr()
+    summary = run_matrix(m, out, workers=1, progress=False)
+    err = capsys.readouterr().err
+    assert summary["run"] == 1 and summary["damaged_moved"] == 1
+    assert err.count("\n") == 1 and f"its traces file {cell}.parquet" in err
+    moved = [p.name for p in (out / "damaged").iterdir()]
+    assert sum(n.startswith(f"{cell}.json") for n in moved) == 1  # the row and its trace kept
+    assert sum(n.startswith(f"traces-{cell}") for n in moved) == (0 if kind == "missing" else 1)
+    assert trace.read_bytes() == original  # recomputed, the same bytes (same seed)
+    assert len(load_traces(out)["cell"].unique()) == 4
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
