@@ -62,7 +62,8 @@ def cli() -> None:
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
 def cases(as_json: bool) -> None:
-    """Table of catalog cases: part, DOFs, candidates, agents, tasks, joint-space size."""
+    """Table of catalog cases: part, DOFs, candidates (and grid points dropped outside the part or in
+    its holes), agents, tasks, joint-space size."""
     from tabulate import tabulate
     from tqdm import tqdm
 
@@ -75,14 +76,15 @@ def cases(as_json: bool) -> None:
         p = Problem(load_case_spec(name))  # candidates and agents only: nothing is assembled
         rows.append({"case": name, "part": p.spec.part, "material": p.spec.material.name,
                      "dofs": dof_count(p.spec),
-                     "candidates": len(p.candidates), "agents": p.n_agents, "tasks": p.n_tasks,
+                     "candidates": len(p.candidates), "dropped": p.spec.candidates_dropped,
+                     "agents": p.n_agents, "tasks": p.n_tasks,
                      "joint_size": p.joint_size})
     if as_json:
         echo_json(rows)
     else:
         table = [{**r, "joint_size": f"{r['joint_size']:.3g}"} for r in rows]
         click.echo(tabulate(table, headers="keys", tablefmt="pipe", disable_numparse=True,
-                            colalign=("left",) * 3 + ("right",) * 5))
+                            colalign=("left",) * 3 + ("right",) * 6))
 
 
 @cli.command()
@@ -95,39 +97,75 @@ def show(case: str, material: str | None, out: Path | None) -> None:
 
     problem = _problem(case, material)
     path = show_case(problem, out or Path(f"{problem.name}.png"))
+    n, dropped = len(problem.candidates), problem.spec.candidates_dropped
+    click.echo(f"{problem.name}: {n} fixture candidates"
+               + (f" ({dropped} grid points outside the part or inside its holes dropped)" if dropped else ""))
     click.echo(f"wrote {path}")
+
+
+def _parse_point(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"'{text}' is not a point x,y in mm", param_hint="--at") from None
+    if not (np.isfinite(x) and np.isfinite(y)):
+        raise click.BadParameter(f"'{text}' is not a finite point x,y in mm", param_hint="--at")
+    return x, y
 
 
 @cli.command()
 @click.argument("case")
 @click.option("--task", type=int, required=True, help="Task index.")
-@click.option("--layout", required=True, help="Candidate indices, one per agent: i1,...,ik.")
+@click.option("--layout", help="Candidate indices, one per agent: i1,...,ik.")
+@click.option("--free", is_flag=True,
+              help="No fixtures: the part on its base supports alone (the free response), instead of --layout.")
+@click.option("--at", "at", multiple=True, metavar="X,Y",
+              help="Also the displacement at this point (mm; repeatable), from the FE field itself.")
 @click.option("--material", help="Material name (default: the case's).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), help="Contour PNG of |u|.")
 @click.option("--vtk", type=click.Path(dir_okay=False, path_type=Path), help="VTU file for ParaView.")
-def evaluate(case, task, layout, material, as_json, plot, vtk) -> None:
-    """Deformation of one fixture layout of CASE for one task (one oracle sample)."""
-    idx = _parse_layout(layout)
+def evaluate(case, task, layout, free, at, material, as_json, plot, vtk) -> None:
+    """Deformation of one fixture layout of CASE for one task (one oracle sample), or with --free of the
+    part with no fixtures; --at x,y adds the displacement at given points (check a model by hand)."""
+    if (layout is None) == (not free):
+        raise click.UsageError("give exactly one of --layout i1,...,ik and --free")
+    idx = None if free else _parse_layout(layout)
+    points = [_parse_point(p) for p in at]
     problem = _problem(case, material)
-    ev = problem.evaluator()
-    d = ev.evaluate(task, [idx])
+    if free:  # one FE solve on the base supports: counted as one sample, as Evaluator.unconstrained
+        d, samples = problem.direct_deformation(task, None), 1
+    else:
+        ev = problem.evaluator()
+        d = ev.evaluate(task, [idx])
+        samples = ev.samples
     result = {"case": problem.name, "material": problem.spec.material.name, "task": task,
-              "layout": idx, **d.row(0), "samples": ev.samples}
+              "layout": "free (no fixtures)" if free else idx, **d.row(0), "samples": samples}
+    if points:
+        u = problem.displacement_at(task, None if free else [idx], np.array(points) * 1e-3)
+        result["at"] = [{"x_mm": x, "y_mm": y, "ux_m": float(ux), "uy_m": float(uy), "w_m": float(w),
+                         "u_m": float(np.sqrt(ux**2 + uy**2 + w**2))}
+                        for (x, y), (ux, uy, w) in zip(points, u)]
+    lay = None if free else [idx]
     if plot:
         from fixbench.bench.plots import field_plot
 
-        field_plot(problem, task, idx, plot)
+        field_plot(problem, task, lay, plot)
     if vtk:
         from fixbench.bench.plots import write_vtk
 
-        write_vtk(problem, task, idx, vtk)
+        write_vtk(problem, task, lay, vtk)
     if as_json:
         echo_json(result)
-    else:
-        for k, v in result.items():
-            unit = " m" if k.startswith("max_") else ""
-            click.echo(f"{k:>16}: {v:.6g}{unit}" if isinstance(v, float) else f"{k:>16}: {v}")
+        return
+    for k, v in result.items():
+        if k == "at":
+            for p in v:
+                click.echo(f"{'at':>16}: ({p['x_mm']:g}, {p['y_mm']:g}) mm  ux {p['ux_m']:.6g} m  "
+                           f"uy {p['uy_m']:.6g} m  w {p['w_m']:.6g} m  |u| {p['u_m']:.6g} m")
+            continue
+        unit = " m" if k.startswith("max_") else ""
+        click.echo(f"{k:>16}: {v:.6g}{unit}" if isinstance(v, float) else f"{k:>16}: {v}")
 
 
 @cli.command()

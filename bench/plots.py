@@ -49,7 +49,10 @@ def show_case(problem: Problem, out: Path) -> Path:
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title(f"{problem.name}: {problem.spec.material.name}, {model.mesh.t.shape[1]} elements, "
-                 f"{len(problem.candidates)} candidates, {problem.n_tasks} tasks", fontsize=9)
+                 f"{len(problem.candidates)} candidates"
+                 + (f" ({problem.spec.candidates_dropped} grid points off the part dropped)"
+                    if problem.spec.candidates_dropped else "")
+                 + f", {problem.n_tasks} tasks", fontsize=9)
     ax.legend(fontsize=7, loc="best", markerscale=2)
     return save_png(fig, out)
 
@@ -64,8 +67,9 @@ def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
     tc = ax.tricontourf(mtri.Triangulation(p[0], p[1], model.mesh.t.T), mag, levels=30, cmap="viridis")
     fig.colorbar(tc, ax=ax, label="|u| (um)")
     outline(ax, problem)
-    c = problem.candidates[np.asarray(layout).ravel()] * 1e3
-    ax.scatter(c[:, 0], c[:, 1], color="red", marker="o", s=30, label="fixtures")
+    if layout is not None:  # None: the free response, no fixtures
+        c = problem.candidates[np.asarray(layout).ravel()] * 1e3
+        ax.scatter(c[:, 0], c[:, 1], color="red", marker="o", s=30, label="fixtures")
     at = [ld.at for ld in problem.tasks[task].loads if ld.at is not None]
     if at:
         at = np.array(at) * 1e3

@@ -178,11 +178,40 @@ class Problem:
         return Evaluator(self, budget)
 
     def solve_direct(self, task: int, layout) -> dict:
-        """Reference path, uncounted: full fields by a direct constrained solve (for checks)."""
+        """Reference path, uncounted: full fields by a direct constrained solve (for checks).
+
+        ``layout`` None is the free response: the part on its base supports alone, no fixture pads.
+        It always exists: a case whose base supports leave a rigid motion free is refused when its
+        model is built, and a stiffness that is still singular raises a one-line NumericalError.
+        """
+        task = self.check_task(task)
+        if layout is None:
+            return self.model.solve_direct(task, np.zeros((0, 2)))
         layout = self.check_layouts(layout)[0]
-        return self.model.solve_direct(self.check_task(task), self.candidates[layout])
+        return self.model.solve_direct(task, self.candidates[layout])
+
+    def displacement_at(self, task: int, layout, points: np.ndarray) -> np.ndarray:
+        """(ux, uy, w) in metres at ``points`` ((n, 2), m) for ``layout`` (None: the free response),
+        from a direct solve: the FE field itself, anywhere on the part, not only at the measurement
+        points the oracle keeps. A point outside the part (or inside a hole) is a CaseError."""
+        import shapely
+
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        part = self.spec.polygon.buffer(1e-9)
+        for x, y in pts:
+            if not part.covers(shapely.Point(x, y)):
+                raise CaseError(self.spec.source, "--at", f"({x * 1e3:g}, {y * 1e3:g}) mm lies outside "
+                                "the part (or inside a hole)")
+        fields = self.solve_direct(task, layout)
+        out = np.zeros((len(pts), 3))
+        for name, u in fields.items():
+            vals = (self.model.component_probes(name, pts) @ u).reshape(-1, len(pts))
+            cols = {"bending": [2], "membrane": [0, 1]}[name]
+            out[:, cols] = vals.T
+        return out
 
     def direct_deformation(self, task: int, layout, soft_power: float | None = None) -> Deformation:
+        """Deformation of ``layout`` (None: the free response) from a direct solve."""
         v = self.model.measure(self.solve_direct(task, layout))
         inplane = np.sqrt(v["ux"] ** 2 + v["uy"] ** 2)
         mag = np.sqrt(inplane**2 + v["w"] ** 2)

@@ -135,6 +135,7 @@ class CaseSpec:
     reward_sigma: tuple[float, float]  # (sigma_x, sigma_z) m, Gaussian reward
     measure_spacing: float
     validation: Validation | None = None
+    candidates_dropped: int = 0  # grid points outside the part or inside a hole, left out of candidates
 
     def with_material(self, material: Material) -> CaseSpec:
         return replace(self, material=material)
@@ -251,7 +252,7 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
     tasks = _tasks(top, polygon)
     mesh = _mesh(top.table("mesh", required=True), tasks)
     supports = tuple(_support(r, polygon) for r in top.tables("supports"))
-    radius, holds, candidates = _fixtures(top.table("fixtures", required=True), polygon)
+    radius, holds, candidates, dropped = _fixtures(top.table("fixtures", required=True), polygon)
     n_agents, regions = _agents(top.table("agents", required=True), candidates)
 
     reward = top.table("reward") or Reader({}, source, "reward")
@@ -273,7 +274,8 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
                     material=material, thickness=thickness, shapes=shapes, polygon=polygon,
                     mesh=mesh, supports=supports, fixture_radius=radius, fixture_holds=holds,
                     candidates=candidates, n_agents=n_agents, agent_regions=regions, tasks=tasks,
-                    reward_sigma=sigma, measure_spacing=spacing, validation=validation)
+                    reward_sigma=sigma, measure_spacing=spacing, validation=validation,
+                    candidates_dropped=dropped)
 
 
 def _material(r: Reader) -> Material:
@@ -409,6 +411,13 @@ def _support(r: Reader, polygon: shapely.Polygon) -> Support:
 
 
 def _fixtures(r: Reader, polygon: shapely.Polygon):
+    """Pad radius, held components, candidates (m) and how many grid points were dropped.
+
+    A grid is laid over the part's bounding box, so its points outside the outline or inside a hole
+    are dropped (and counted): a part with holes or a non-convex outline needs no hand-drawn keep
+    polygon. Points listed one by one must all lie inside the part (a listed point outside it is a
+    mistake in the file, not a grid overhanging the part).
+    """
     radius = r.number("radius", "length", positive=True)
     holds = _holds(r, ["ux", "uy", "w"], ("ux", "uy", "w"))
     grid = r.table("grid")
@@ -434,13 +443,19 @@ def _fixtures(r: Reader, polygon: shapely.Polygon):
     if len(points) == 0:
         raise r.error("grid" if grid is not None else "points_mm", "no fixture candidates")
     inside = shapely.contains_xy(polygon, points[:, 0], points[:, 1])
-    if not inside.all():
+    dropped = 0
+    if grid is not None:
+        dropped = int(np.count_nonzero(~inside))
+        points = points[inside]
+        if len(points) == 0:
+            raise r.error("grid", f"no grid point lies inside the part (all {dropped} fall outside "
+                                  "its outline or inside its holes)")
+    elif not inside.all():
         i = int(np.flatnonzero(~inside)[0])
         x, y = points[i] * 1e3
-        raise r.error("grid" if grid is not None else "points_mm",
-                      f"candidate {i} at ({x:.1f}, {y:.1f}) mm lies outside the part")
+        raise r.error("points_mm", f"candidate {i} at ({x:.1f}, {y:.1f}) mm lies outside the part")
     r.finish()
-    return radius, holds, points
+    return radius, holds, points, dropped
 
 
 def _agents(r: Reader, candidates: np.ndarray):
