@@ -328,6 +328,100 @@ def export(run_dir, fmt, out) -> None:
                + "".join(f"; {v} cells left out ({k})" for k, v in skipped.items()) + ")")
 
 
+#: largest joint table ``fixbench equilibria`` builds (float64: 160 MB a task)
+MAX_TABLE = 2 * 10**7
+
+
+@cli.command()
+@click.argument("case")
+@click.option("--task", type=int, help="One task (default: every task); Figure 3 needs one.")
+@click.option("--agents", type=click.IntRange(min=1), help="Number of agents (default: the case's).")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--starts", type=click.IntRange(min=1), default=10_000, show_default=True,
+              help="Best-response descents from uniform random layouts (the basins).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random starts.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="PNG of the seed's Figure 3 (2 agents and one --task).")
+@click.option("--json", "as_json", is_flag=True, help="Print strict JSON (with the table for 2 agents).")
+def equilibria(case, task, agents, material, starts, seed, out, as_json) -> None:
+    """Person-by-person optima of CASE by exhaustive enumeration (analysis, uncounted; not a planner):
+    how many, their regret against the optimum, their basins under greedy best response."""
+    from fixbench.bench.equilibria import analyse
+
+    problem = _problem(case, material, agents)
+    if problem.joint_size > MAX_TABLE:
+        raise click.BadParameter(f"{problem.name} has {problem.joint_size:.3g} layouts at {problem.n_agents} "
+                                 f"agents; the analysis enumerates at most {MAX_TABLE:.0e}", param_hint="--agents")
+    if out and (task is None or problem.n_agents != 2):
+        raise click.BadParameter("Figure 3 draws one task of a 2-agent problem: give --task and --agents 2",
+                                 param_hint="--out")
+    tasks = range(problem.n_tasks) if task is None else [problem.check_task(task)]
+    res, tables, _ = analyse(problem, tasks, starts, seed)
+    if problem.n_agents == 2:
+        for rec in res["tasks"]:
+            rec["table_m"] = tables[rec["task"]]
+    if out:
+        from fixbench.bench.analysis_figures import figure3
+        from fixbench.bench.plots import save_png
+
+        fig = figure3(tables[task], f"{problem.name} ({res['material']}), task {task}: max |u| of all "
+                      f"{problem.joint_size:,} layouts\n(exhaustive enumeration: analysis, not a planner)")
+        click.echo(f"wrote {save_png(fig, out)}", err=as_json)
+    if as_json:
+        echo_json(res)
+        return
+    click.echo(f"{problem.name} ({res['material']}), {problem.n_agents} agents, {problem.joint_size:,} layouts "
+               f"a task, every one evaluated (analysis, uncounted); basins from {starts:,} random starts, seed {seed}")
+    for rec in res["tasks"]:
+        click.echo(f"task {rec['task']}: {rec['pbp_optima']} person-by-person optima, optimum "
+                   f"{rec['optimum_m'] * 1e6:.4g} um; worst regret {rec['pbp_regret_max']:.1%}; "
+                   f"{rec['global_basin_share']:.1%} of descents reach the optimum, "
+                   f"{rec['descents_within_5pct']:.1%} end within 5 %")
+        for o in rec["optima"][:10]:
+            click.echo(f"  {','.join(map(str, o['layout'])):>24}  {o['max_deformation_m'] * 1e6:10.4g} um  "
+                       f"regret {o['regret']:8.2%}  basin {o['basin_share']:6.2%}")
+        if len(rec["optima"]) > 10:
+            click.echo(f"  ... {len(rec['optima']) - 10} more (--json lists all)")
+
+
+@cli.command()
+@click.argument("case")
+@click.option("--tolerance-um", type=click.FloatRange(min=0, min_open=True), required=True,
+              help="Largest acceptable max deformation (um).")
+@click.option("--max-agents", type=click.IntRange(min=1), help="Try N = 1..K robots (default: the case's count).")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--fraction", type=click.FloatRange(0, 1, min_open=True), default=1.0, show_default=True,
+              help="Share of the tasks that must be within the tolerance.")
+@click.option("--max-evaluations", type=click.IntRange(min=1), help="Enumerate an agent count only up to "
+              "this many layout evaluations (layouts x tasks; default 1e8), else use a shipped reference.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG of deformation against N.")
+@click.option("--json", "as_json", is_flag=True, help="Print strict JSON.")
+def robots(case, tolerance_um, max_agents, material, fraction, max_evaluations, out, as_json) -> None:
+    """How many robots keep CASE within a tolerance: the best max deformation of every task for N = 1..K
+    (proven optimum by enumeration, else a shipped reference, else unavailable)."""
+    from fixbench.bench.robots import MAX_EVALUATIONS, robots_needed, robots_table
+
+    k = max_agents or _problem(case, material).n_agents
+    tol = tolerance_um * 1e-6
+    rows = robots_table(case, material, k, tol, max_evaluations or MAX_EVALUATIONS)
+    answers = [robots_needed(rows, f) for f in sorted({1.0, fraction})]
+    if out:
+        from fixbench.bench.analysis_figures import robots_figure
+        from fixbench.bench.plots import save_png
+
+        fig = robots_figure(rows, tol, f"{rows[0]['case']} ({rows[0]['material']}): best max |u| per task")
+        click.echo(f"wrote {save_png(fig, out)}", err=as_json)
+    if as_json:
+        echo_json({"case": rows[0]["case"], "material": rows[0]["material"], "tolerance_m": tol,
+                   "rows": rows, "answers": answers})
+        return
+    from fixbench.bench.robots import answer_text, show_robots
+
+    click.echo(show_robots(rows).to_markdown(index=False))
+    for a in answers:
+        click.echo(answer_text(a, tolerance_um))
+
+
 @cli.group()
 def references() -> None:
     """Regret references of the full parts: build them, merge better layouts from a run."""
