@@ -72,12 +72,14 @@ def write_equilibria(out: Path, starts: int, seed: int, echo) -> list[Path]:
     from fixbench.bench.plots import save_png
     from fixbench.bench.tables import show_numbers
     from fixbench.cases.problem import load_problem
+    from fixbench.cases.references import case_fingerprint
 
     written = []
     two = []
     for case, task in FIGURE3:
         problem = load_problem(case, agents=2)
         rec, tables, _ = analyse(problem, range(problem.n_tasks), starts, seed)
+        rec["case_fingerprint"] = case_fingerprint(case, rec["material"], 2)
         two.append(rec)
         title = (f"{case} ({rec['material']}), 2 agents, task {task}: max |u| of all {problem.joint_size:,} "
                  "layouts\n(exhaustive enumeration: analysis, not a planner)")
@@ -88,6 +90,7 @@ def write_equilibria(out: Path, starts: int, seed: int, echo) -> list[Path]:
     for case in SMALL_CASES:
         problem = load_problem(case)
         rec, _, land = analyse(problem, range(problem.n_tasks), starts, seed)
+        rec["case_fingerprint"] = case_fingerprint(case, rec["material"], rec["agents"])  # which case it was
         records.append(rec)
         lands[case] = list(land.values())
         echo(f"{case}: PBP optima by task {[t['pbp_optima'] for t in rec['tasks']]}")

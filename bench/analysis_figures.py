@@ -52,7 +52,8 @@ def figure3(table: np.ndarray, title: str):
 def landscape_figure(landscapes: dict[str, list[Landscape]]):
     """Per case (a column): top, every PBP optimum's regret against its basin (share of descents);
     bottom, the share of best-response descents ending within a regret (ECDF), one line per task.
-    A regret of 0 (a global optimum) is drawn at REGRET_FLOOR_PCT on the log axes."""
+    A regret of 0 (a global optimum) is drawn at REGRET_FLOOR_PCT on the log axes, a PBP optimum that
+    no descent reached as a triangle at half a descent's share."""
     cases = list(landscapes)
     fig, axes = panel_grid(2 * len(cases), max_cols=len(cases), width=3.2 * len(cases), row_height=3.2)
     colors = plt.get_cmap("tab10")
@@ -68,9 +69,10 @@ def landscape_figure(landscapes: dict[str, list[Landscape]]):
             end = np.sort(np.maximum(land.end_regret * 100, REGRET_FLOOR_PCT))
             bottom.step(end, np.arange(1, len(end) + 1) / len(end) * 100, where="post", color=colors(t % 10),
                         label=f"task {t}")
-        top.set(xscale="log", yscale="log", title=case, xlabel="regret of the PBP optimum (%)",
+        zero = f"(%; 0 at {REGRET_FLOOR_PCT:g})"
+        top.set(xscale="log", yscale="log", title=case, xlabel=f"regret of the PBP optimum {zero}",
                 ylabel="basin (% of descents)" if c == 0 else None)
-        bottom.set(xscale="log", ylim=(0, 101), xlabel="regret where a descent stops (%)",
+        bottom.set(xscale="log", ylim=(0, 101), xlabel=f"regret where a descent stops {zero}",
                    ylabel="descents (%, cumulative)" if c == 0 else None)
         for ax in (top, bottom):
             ax.axvline(5, color="0.5", lw=0.8, ls="--")

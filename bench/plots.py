@@ -109,9 +109,11 @@ def anytime_plot(result, out: Path) -> Path:
 
 
 def save_png(fig, out: Path) -> Path:
-    """``fig`` as a PNG at ``out`` (its folder made), then closed."""
+    """``fig`` as a PNG at ``out`` (its folder made), then closed; laid out tightly unless it has a
+    layout engine of its own (a constrained-layout figure of several panels)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     fig.savefig(out, dpi=130)
     plt.close(fig)
     return out

@@ -15,8 +15,9 @@ import pytest
 
 from fixbench.bench.cli import main
 from fixbench.bench.equilibria import best_response_descent, joint_table, landscape, pbp_mask
-from fixbench.bench.robots import robots_needed, robots_table
+from fixbench.bench.robots import best_per_task, robots_needed, robots_table
 from fixbench.cases.problem import load_problem
+from fixbench.cases.references import load_reference
 
 #: 12 pads on the conftest plate: 3 agents x 4 (64 layouts) or 2 x 6 (36)
 POINTS = ("points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]",
@@ -121,6 +122,15 @@ def test_robots_table_enumerates_or_says_unavailable(plate_toml):
     capped = robots_table(path, None, 3, tolerance_m=1.0, max_evaluations=100)  # 2 x 6^2 x 3 tasks > 100
     assert [r["per_task_m"] is None for r in capped] == [False, True, True]
     assert capped[2]["source"].startswith("unavailable") and capped[2]["within"] is None
+
+
+def test_robots_falls_back_to_the_shipped_reference_and_nothing_else():
+    ref = load_reference("wing_panel", "aluminium", 5)
+    rec = best_per_task("wing_panel", "aluminium", 5)  # 1.3e14 layouts x 500 tasks: not enumerated
+    assert rec["source"] == "shipped reference wing_panel__aluminium__a5.json"
+    assert rec["per_task_m"] == [t["max_deformation_m"] for t in ref["tasks"]] and not rec["proven"]
+    rec = best_per_task("wing_panel", "aluminium", 4)  # no reference at 4 agents
+    assert rec["per_task_m"] is None and rec["source"].startswith("unavailable")
 
 
 def test_cli_equilibria_and_robots(plate_toml, tmp_path, capsys):
