@@ -110,7 +110,7 @@ def write_robots(out: Path, tolerance_um: float, fraction: float, echo) -> list[
     from fixbench.bench.robots import answer_text, robots_needed, robots_table, show_robots
 
     tol = tolerance_um * 1e-6
-    written, summary, records = [], [], []
+    written, records = [], []
     for case, k in ROBOTS:
         sections = [f"# {case}: best max deformation per task against the number of robots\n",
                     f"Tolerance {tolerance_um:g} um (`fixbench robots {case} --tolerance-um {tolerance_um:g} "
@@ -125,16 +125,26 @@ def write_robots(out: Path, tolerance_um: float, fraction: float, echo) -> list[
                          f"![](robots_{case}_{material}.png)\n"]
             written.append(save_png(robots_figure(rows, tol, f"{case} ({material}): best max |u| per task"),
                                     out / f"robots_{case}_{material}.png"))
-            summary.append({"case": case, "material": material,
-                            **{f"N={r['agents']}": "-" if r["worst_m"] is None else
-                               f"{r['worst_m'] * 1e6:.3g}" + ("" if r["proven"] else "*") for r in rows},
-                            "every task": _short(answers[0]), f"{fraction:.0%} of tasks": _short(answers[1])})
             echo(f"{case} ({material}): {answer_text(answers[0], tolerance_um)}")
         written.append(_write(out / f"robots_{case}.md", "\n".join(sections)))
-    table = pd.DataFrame(summary).fillna("")
-    written.append(_write(out / "robots.md", _markdown(table)))
+    written.append(_write(out / "robots.md", _markdown(robots_summary(records, fraction))))
     written.append(_write(out / "robots.json", json.dumps(records, indent=1, allow_nan=False) + "\n"))
     return written
+
+
+def robots_summary(records: list[dict], fraction: float) -> pd.DataFrame:
+    """The README's robots table: per case and material, the worst task's best max deformation (um)
+    for every N (``*``: best-known, not proven; ``-``: unavailable; blank: not tried) and the smallest
+    N for every task and for ``fraction`` of them (``records``: as robots.json holds them)."""
+    k = max(len(rec["rows"]) for rec in records)
+    out = []
+    for rec in records:
+        worst = {r["agents"]: "-" if r["worst_m"] is None
+                 else f"{r['worst_m'] * 1e6:.3g}" + ("" if r["proven"] else "*") for r in rec["rows"]}
+        out.append({"case": rec["case"], "material": rec["material"],
+                    **{f"N={n}": worst.get(n, "") for n in range(1, k + 1)},
+                    "every task": _short(rec["answers"][0]), f"{fraction:.0%} of tasks": _short(rec["answers"][1])})
+    return pd.DataFrame(out)
 
 
 def _short(answer: dict) -> str:

@@ -69,37 +69,43 @@ def landscape_figure(landscapes: dict[str, list[Landscape]]):
             end = np.sort(np.maximum(land.end_regret * 100, REGRET_FLOOR_PCT))
             bottom.step(end, np.arange(1, len(end) + 1) / len(end) * 100, where="post", color=colors(t % 10),
                         label=f"task {t}")
-        zero = f"(%; 0 at {REGRET_FLOOR_PCT:g})"
-        top.set(xscale="log", yscale="log", title=case, xlabel=f"regret of the PBP optimum {zero}",
+        top.set(xscale="log", yscale="log", title=case, xlabel="regret of the PBP optimum (%)",
                 ylabel="basin (% of descents)" if c == 0 else None)
-        bottom.set(xscale="log", ylim=(0, 101), xlabel=f"regret where a descent stops {zero}",
+        bottom.set(xscale="log", ylim=(0, 101), xlabel="regret where a descent stops (%)",
                    ylabel="descents (%, cumulative)" if c == 0 else None)
         for ax in (top, bottom):
             ax.axvline(5, color="0.5", lw=0.8, ls="--")
             ax.grid(alpha=0.3)
         bottom.legend(fontsize=7, loc="lower right")
+    fig.suptitle(f"Person-by-person optima (top) and where best-response descents stop (bottom); a regret of 0 "
+                 f"(a global optimum) is drawn at {REGRET_FLOOR_PCT:g} %, 5 % dashed", fontsize=9)
     return fig
 
 
 def robots_figure(rows: list[dict], tolerance_m: float, title: str):
-    """Best max deformation (um, log) against the number of robots, one line per task (a median line
-    and a min-max band above 12 tasks); proven points filled, best-known ones open; the tolerance
-    dashed. ``rows``: :func:`fixbench.bench.robots.robots_table` records."""
+    """Best max deformation (um, log) against the number of robots: one line per task, or above 12
+    tasks the median with a min-max bar; proven points filled, best-known ones open; lines join only
+    consecutive agent counts (none is drawn across an unavailable one); the tolerance dashed.
+    ``rows``: :func:`fixbench.bench.robots.robots_table` records."""
     known = [r for r in rows if r["per_task_m"] is not None]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     if known:
         n = np.array([r["agents"] for r in known])
         u = np.array([r["per_task_m"] for r in known]) * 1e6  # (N values, tasks)
         proven = np.array([r["proven"] for r in known])
-        if u.shape[1] <= 12:
-            colors = plt.get_cmap("tab10")
-            for t in range(u.shape[1]):
-                ax.plot(n, u[:, t], color=colors(t % 10), lw=1, label=f"task {t}")
-                ax.scatter(n[proven], u[proven, t], color=colors(t % 10), s=18)
-                ax.scatter(n[~proven], u[~proven, t], facecolors="none", edgecolors=colors(t % 10), s=18)
-        else:
-            ax.fill_between(n, u.min(axis=1), u.max(axis=1), alpha=0.25, label="tasks: min-max")
-            ax.plot(n, np.median(u, axis=1), marker="o", label="tasks: median")
+        runs = np.split(np.arange(len(n)), np.flatnonzero(np.diff(n) > 1) + 1)  # consecutive counts
+        many = u.shape[1] > 12
+        lines = ([("tasks: median", np.median(u, axis=1))] if many
+                 else [(f"task {t}", u[:, t]) for t in range(u.shape[1])])
+        colors = plt.get_cmap("tab10")
+        for i, (label, y) in enumerate(lines):
+            c = colors(i % 10)
+            for k, run in enumerate(runs):
+                ax.plot(n[run], y[run], color=c, lw=1, label=label if k == 0 else None)
+            ax.scatter(n[proven], y[proven], color=c, s=18)
+            ax.scatter(n[~proven], y[~proven], facecolors="white", edgecolors=c, s=18, zorder=3)
+        if many:
+            ax.vlines(n, u.min(axis=1), u.max(axis=1), color=colors(0), alpha=0.4, lw=6, label="tasks: min-max")
     ax.axhline(tolerance_m * 1e6, color="black", ls="--", lw=1, label=f"tolerance {tolerance_m * 1e6:g} um")
     missing = [r["agents"] for r in rows if r["per_task_m"] is None]
     ax.set(yscale="log", xlabel="robots (agents)", ylabel="best max |u| (um)",
