@@ -170,18 +170,32 @@ def evaluate(case, task, layout, free, at, material, as_json, plot, vtk) -> None
 
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list of checks.")
-def validate(as_json: bool) -> None:
-    """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%."""
+@click.option("--parts/--no-parts", "with_parts", default=True, show_default=True,
+              help="The w/t lines of the catalog parts (they solve every part: minutes).")
+def validate(as_json: bool, with_parts: bool) -> None:
+    """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%. Then one
+    line per catalog part: its largest w/t at the reference layouts (shipped reference, or the proven
+    optimum of a *_small case at the default matrix's agent count); exit 1 if any is beyond 0.5."""
+    from fixbench.bench.matrix import find_matrix, load_matrix
     from fixbench.cases.analytic import validate as run
+    from fixbench.cases.linearity import part_rows
 
     checks = run()
+    parts = part_rows(small_agents=min(load_matrix(find_matrix("default")).agents)) if with_parts else []
     if as_json:
-        echo_json(checks)
+        echo_json(checks + parts)
     else:
         import pandas as pd
 
         click.echo(pd.DataFrame(checks).to_markdown(index=False, floatfmt=".5g"))
-    if any(c["rel_error"] > 0.01 for c in checks):
+    if with_parts and not as_json:
+        click.echo()
+        table = [{"part": r["name"], "layouts": r["layouts"], "agents": r["agents"], "tasks": r["tasks"],
+                  "max w (mm)": None if r["max_w_m"] is None else 1e3 * r["max_w_m"],
+                  "t (mm)": 1e3 * r["thickness_m"], "w/t": r["w_over_t"],
+                  "": "BEYOND 0.5: outside linear plate theory" if r["flagged"] else ""} for r in parts]
+        click.echo(pd.DataFrame(table).to_markdown(index=False, floatfmt=".3g"))
+    if any(c["rel_error"] > 0.01 for c in checks) or any(r["flagged"] for r in parts):
         sys.exit(1)
 
 

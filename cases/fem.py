@@ -31,7 +31,7 @@ from skfem.helpers import dd, ddot, sym_grad, trace
 
 from fixbench.cases.errors import CaseError, NumericalError
 from fixbench.cases.geometry import inward, make_mesh, measurement_points
-from fixbench.cases.spec import FIELD_OF, CaseSpec, Load, Task
+from fixbench.cases.spec import FIELD_OF, STANDARD_GRAVITY, CaseSpec, Load, Task
 
 FIELDS = ("bending", "membrane")
 #: components of each field, in the order they are stored
@@ -249,7 +249,7 @@ def _loaded(spec: CaseSpec, field: str) -> bool:
     """Whether any task loads ``field`` (bending: out-of-plane loads; membrane: in-plane ones)."""
     for task in spec.tasks:
         for ld in task.loads:
-            if field == "bending" and (ld.kind == "pressure" and ld.magnitude != 0
+            if field == "bending" and (ld.kind == "pressure" and ld.magnitude != 0 or ld.kind == "weight"
                                        or ld.kind in ("patch", "edge_traction") and ld.force[2] != 0):
                 return True
             if field == "membrane" and (ld.kind == "centrifugal" and ld.magnitude != 0
@@ -439,8 +439,11 @@ class PlateModel:
         return p[keep], w[keep] / w[keep].sum()
 
     def _distributed(self, field: str, ld: Load) -> np.ndarray:
-        """Load vector of a pressure or centrifugal load (zero where the field does not feel it)."""
+        """Load vector of a pressure, weight or centrifugal load (zero where the field does not feel it)."""
         fs = self.fields[field]
+        if ld.kind == "weight" and field == "bending":  # rho g t along -z: a pressure of the material
+            q = -self.spec.material.density * STANDARD_GRAVITY * self.spec.thickness
+            return pressure_form.assemble(fs.basis, q=q, inside=1.0)
         if ld.kind == "pressure" and field == "bending":
             inside = 1.0
             if ld.region is not None:

@@ -25,6 +25,8 @@ DOF_NAMES = ("ux", "uy", "w", "rot")
 SUPPORT_KINDS = {"clamped": ("ux", "uy", "w", "rot"), "pinned": ("ux", "uy", "w"),
                  "simple": ("w",), "membrane": ("ux", "uy")}
 FIELD_OF = {"ux": "membrane", "uy": "membrane", "w": "bending", "rot": "bending"}
+#: standard gravity (m/s^2): the ``weight`` load is rho g t along -z
+STANDARD_GRAVITY = 9.80665
 
 
 # ---------------------------------------------------------------------------------------------
@@ -73,9 +75,11 @@ class Support:
 
 @dataclass(frozen=True)
 class Load:
-    """One load. ``kind`` is pressure, centrifugal, patch or edge_traction.
+    """One load. ``kind`` is pressure, weight, centrifugal, patch or edge_traction.
 
     - pressure: ``magnitude`` Pa normal to the plate (+z), over the part or ``region``.
+    - weight: the part's own weight lying flat, rho g t along -z (:data:`STANDARD_GRAVITY`), from
+      the material of the model (so it follows a ``--material`` override); ``magnitude`` unused.
     - centrifugal: body force rho t omega^2 r about ``at`` (the axis, normal to the plate),
       ``magnitude`` = omega in rad/s.
     - patch: total ``force`` (Fx, Fy, Fz) spread uniformly over a disc of ``radius`` at ``at``
@@ -487,8 +491,10 @@ def _agents(r: Reader, candidates: np.ndarray):
 
 
 def _load(r: Reader, polygon: shapely.Polygon) -> Load:
-    kind = r.text("kind", choices=("pressure", "centrifugal", "patch", "edge_traction"))
-    if kind == "pressure":
+    kind = r.text("kind", choices=("pressure", "weight", "centrifugal", "patch", "edge_traction"))
+    if kind == "weight":
+        ld = Load(kind)
+    elif kind == "pressure":
         region = r.array("region", "length", None, shape=(-1, 2))
         ld = Load(kind, magnitude=r.number("pressure", "pressure"), region=region)
     elif kind == "centrifugal":

@@ -151,7 +151,9 @@ def task_features(problem: Problem, task: int) -> np.ndarray:
     patches = [ld for ld in loads if ld.kind == "patch" and ld.at is not None]
     centre = (np.mean([ld.at for ld in patches], axis=0) - lo) / size if patches else np.full(2, 0.5)
     force = sum(float(np.linalg.norm(ld.force)) for ld in patches)
-    kinds = [sum(ld.kind == k for ld in loads) for k in ("pressure", "centrifugal", "edge_traction")]
+    spread = {"weight": "pressure"}  # a part's own weight is a uniform pressure of its material
+    kinds = [sum(spread.get(ld.kind, ld.kind) == k for ld in loads)
+             for k in ("pressure", "centrifugal", "edge_traction")]
     return np.concatenate([f, centre, [np.log10(1.0 + force)], kinds])
 
 

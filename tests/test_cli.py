@@ -40,11 +40,23 @@ def test_evaluate_json_plot_vtk(capsys, tmp_path):
 
 
 def test_validate_json(capsys):
-    checks = json.loads(run(capsys, "validate", "--json"))
+    checks = json.loads(run(capsys, "validate", "--json", "--no-parts"))
     assert len(checks) >= 6
     for c in checks:
         assert {"name", "computed", "reference", "rel_error"} <= set(c)
         assert c["rel_error"] <= 0.01
+
+
+@pytest.mark.slow
+def test_validate_parts(capsys):
+    """A w/t line per catalog fixture case, none beyond 0.5 (solves every part: minutes)."""
+    rows = json.loads(run(capsys, "validate", "--json"))
+    parts = {r["name"]: r for r in rows if r.get("check") == "w/t"}
+    assert set(parts) == {"bus_panel", "bus_panel_small", "fan", "fan_small", "wing_panel",
+                          "wing_panel_small", "wing_spar", "wing_spar_small"}
+    for r in parts.values():
+        assert r["w_over_t"] is not None and r["w_over_t"] <= r["limit"] == 0.5 and not r["flagged"]
+    assert parts["wing_spar"]["w_over_t"] == 0 < parts["wing_spar_small"]["w_over_t"]  # only the small one has weight
 
 
 def test_cases_json(capsys):
