@@ -10,7 +10,7 @@ best-response descent from a uniform random layout ends in each (its basin).
 This is analysis, not a planner: the joint table of every layout is computed on the oracle
 directly (batched, uncounted); no planner's budget is charged and nothing here is a benchmark
 result. Tables are indexed by each agent's position in its own candidate set (agent 0 first), in
-the mixed-radix order of :func:`fixbench.solvers.exact.decode`.
+the mixed-radix order of :func:`fixbench.cases.problem.decode_layouts`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ CHUNK = 2**18
 
 def enumeration_chunks(problem: Problem, tasks, chunk: int = CHUNK):
     """Every layout of ``problem`` in chunks: yields (first flat index, {task: max |u| in metres})."""
-    from fixbench.solvers.exact import decode
+    from fixbench.cases.problem import decode_layouts as decode
 
     n = problem.joint_size
     for start in range(0, n, chunk):

@@ -19,22 +19,12 @@ import math
 
 import numpy as np
 
-from fixbench.cases.problem import Problem, load_problem
+from fixbench.cases.problem import Problem, decode_layouts, load_problem
 from fixbench.cases.references import load_reference
 from fixbench.cases.spec import case_names, load_case_spec
 
 #: largest w/t accepted at the reference layouts (half the thickness)
 LIMIT = 0.5
-
-
-def _decode(sets: list[np.ndarray], start: int, stop: int) -> np.ndarray:
-    """Layouts ``start..stop-1`` of the joint space, mixed radix, agent 0 most significant."""
-    idx = np.arange(start, stop, dtype=np.int64)
-    out = np.empty((len(idx), len(sets)), dtype=np.int64)
-    for a in range(len(sets) - 1, -1, -1):
-        idx, digit = np.divmod(idx, len(sets[a]))
-        out[:, a] = sets[a][digit]
-    return out
 
 
 def optimum_layouts(problem: Problem, chunk: int = 2**18) -> np.ndarray:
@@ -44,7 +34,7 @@ def optimum_layouts(problem: Problem, chunk: int = 2**18) -> np.ndarray:
     for t in range(problem.n_tasks):
         value = math.inf
         for start in range(0, size, chunk):
-            layouts = _decode(sets, start, min(size, start + chunk))
+            layouts = decode_layouts(sets, start, min(size, start + chunk))
             u = problem.oracle.evaluate(t, layouts)[:, 3]  # max |u| column
             i = int(np.argmin(u))
             if u[i] < value:

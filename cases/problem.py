@@ -302,6 +302,17 @@ class Evaluator:
         return fo.d0[task].copy(), fo.m0[task].copy()
 
 
+def decode_layouts(sets: list[np.ndarray], start: int, stop: int) -> np.ndarray:
+    """Layouts ``start..stop-1`` of the joint space of the agents' candidate ``sets`` in mixed-radix
+    order (agent 0 most significant): how exhaustive enumeration walks the joint space in chunks."""
+    idx = np.arange(start, stop, dtype=np.int64)
+    out = np.empty((len(idx), len(sets)), dtype=np.int64)
+    for a in range(len(sets) - 1, -1, -1):
+        idx, digit = np.divmod(idx, len(sets[a]))
+        out[:, a] = sets[a][digit]
+    return out
+
+
 def _action_sets(spec: CaseSpec) -> list[np.ndarray]:
     n = len(spec.candidates)
     if spec.agent_regions:

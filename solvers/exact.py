@@ -43,7 +43,7 @@ import scipy.optimize
 import scipy.sparse as sp
 from tqdm import tqdm
 
-from fixbench.cases.problem import Problem
+from fixbench.cases.problem import Problem, decode_layouts
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
 from fixbench.solvers.registry import register
 
@@ -69,16 +69,6 @@ class ExactConfig(PlannerConfig):
     """Most compliance columns (candidates x held components, all fields) the dense MILP accepts."""
 
 
-def decode(sets: list[np.ndarray], start: int, stop: int) -> np.ndarray:
-    """Layouts ``start..stop-1`` of the joint space in mixed-radix order (agent 0 most significant)."""
-    idx = np.arange(start, stop, dtype=np.int64)
-    out = np.empty((len(idx), len(sets)), dtype=np.int64)
-    for a in range(len(sets) - 1, -1, -1):
-        idx, digit = np.divmod(idx, len(sets[a]))
-        out[:, a] = sets[a][digit]
-    return out
-
-
 @register
 class Exact(Planner):
     name = "exact"
@@ -100,7 +90,7 @@ class Exact(Planner):
         with tqdm(total=n * T, unit="layout", unit_scale=True, desc=f"exact {problem.name}",
                   disable=None, delay=2.0, leave=False) as bar:
             for start in range(0, n, self.config.chunk):
-                layouts = decode(problem.action_sets, start, min(n, start + self.config.chunk))
+                layouts = decode_layouts(problem.action_sets, start, min(n, start + self.config.chunk))
                 if mode == "shared":
                     values = ev.evaluate_shared(layouts)  # all tasks or none: checked before any is run
                     i = int(np.argmin(values))

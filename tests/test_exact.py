@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fixbench.cases import load_problem
+from fixbench.cases.problem import decode_layouts as decode
 from fixbench.solvers import PlannerError, get
-from fixbench.solvers.exact import decode
 
 POINTS = ("points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]",
           "points_mm = [[100, 50], [100, 150], [150, 100], [200, 50], [200, 150], [250, 100], "
