@@ -47,10 +47,14 @@ def test_validate_json(capsys):
         assert c["rel_error"] <= 0.01
 
 
+def _refuse(name):
+    raise ValueError(f"not JSON: {name}")
+
+
 @pytest.mark.slow
 def test_validate_parts(capsys):
     """A w/t line per catalog fixture case, none beyond 0.5 (solves every part: minutes)."""
-    rows = json.loads(run(capsys, "validate", "--json"))
+    rows = json.loads(run(capsys, "validate", "--json"), parse_constant=_refuse)  # strict JSON
     parts = {r["name"]: r for r in rows if r.get("check") == "w/t"}
     assert set(parts) == {"bus_panel", "bus_panel_small", "fan", "fan_small", "wing_panel",
                           "wing_panel_small", "wing_spar", "wing_spar_small"}
