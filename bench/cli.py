@@ -17,10 +17,10 @@ from fixbench import __version__
 from fixbench.cases.errors import FixbenchError
 
 
-def _problem(case: str, material: str | None, agents: int | None = None):
+def _problem(case: str, material: str | None, agents: int | None = None, fixtures_per_agent: int | None = None):
     from fixbench.cases.problem import load_problem
 
-    return load_problem(case, material=material, agents=agents)
+    return load_problem(case, material=material, agents=agents, fixtures_per_agent=fixtures_per_agent)
 
 
 def _strict(obj):
@@ -63,7 +63,7 @@ def cli() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
 def cases(as_json: bool) -> None:
     """Table of catalog cases: part, DOFs, candidates (and grid points dropped outside the part or in
-    its holes), agents, tasks, joint-space size."""
+    its holes), agents, pads a robot places, tasks, joint-space size."""
     from tabulate import tabulate
     from tqdm import tqdm
 
@@ -77,14 +77,22 @@ def cases(as_json: bool) -> None:
         rows.append({"case": name, "part": p.spec.part, "material": p.spec.material.name,
                      "dofs": dof_count(p.spec),
                      "candidates": len(p.candidates), "dropped": p.spec.candidates_dropped,
-                     "agents": p.n_agents, "tasks": p.n_tasks,
+                     "agents": p.n_agents, "pads": _pads_text(p.spec.effector), "tasks": p.n_tasks,
                      "joint_size": p.joint_size})
     if as_json:
         echo_json(rows)
     else:
         table = [{**r, "joint_size": f"{r['joint_size']:.3g}"} for r in rows]
         click.echo(tabulate(table, headers="keys", tablefmt="pipe", disable_numparse=True,
-                            colalign=("left",) * 3 + ("right",) * 6))
+                            colalign=("left",) * 3 + ("right",) * 7))
+
+
+def _pads_text(eff) -> str:
+    """What each robot places, in a word: "1", "2 (pair <= 60 mm)", "1 or none, 3 in all"."""
+    text = str(eff.per_agent) + (f" (pair <= {eff.span * 1e3:g} mm)" if eff.kind == "pair" else "")
+    if eff.idle:
+        text += " or none"
+    return text + (f", {eff.pads} in all" if eff.pads else "")
 
 
 @cli.command()
@@ -235,6 +243,8 @@ def solvers(as_json: bool) -> None:
               help="Registered name, or package.module:Class of your own planner.")
 @click.option("--material", help="Material name (default: the case's).")
 @click.option("--agents", type=int, help="Number of agents (default: the case's).")
+@click.option("--fixtures-per-agent", type=click.IntRange(min=1),
+              help="Pads each robot places, m distinct candidates of its set (default: the case's).")
 @click.option("--budget", type=int, help="Hard sample budget (default: unlimited).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--mode", type=click.Choice(["per-task", "shared"]), default="per-task", show_default=True)
@@ -244,7 +254,8 @@ def solvers(as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="PNG of the anytime curves (best so far against samples).")
-def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldout_every, as_json, plot) -> None:
+def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed, mode, sets, heldout_every,
+          as_json, plot) -> None:
     """Plan fixture layouts for CASE with one planner and report what it reached."""
     from fixbench.solvers.config import apply_sets
     from fixbench.solvers.registry import get
@@ -253,7 +264,7 @@ def solve(case, planner_name, material, agents, budget, seed, mode, sets, heldou
         raise click.BadParameter(f"must be positive, got {budget}", param_hint="--budget")
     cls = get(planner_name)
     planner = cls(**apply_sets(cls.Config, sets, cls.name))
-    problem = _problem(case, material, agents)
+    problem = _problem(case, material, agents, fixtures_per_agent)
     train = None if heldout_every is None else list(range(0, problem.n_tasks, heldout_every))
     result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
     if plot:

@@ -32,7 +32,7 @@ def enumeration_chunks(problem: Problem, tasks, chunk: int = CHUNK):
     n = problem.joint_size
     for start in range(0, n, chunk):
         layouts = decode(problem.action_sets, start, min(n, start + chunk))
-        yield start, {t: problem.deformation(problem.oracle.evaluate(t, layouts)).max_u for t in tasks}
+        yield start, {t: problem.deformation(problem.measure(t, layouts)).max_u for t in tasks}
 
 
 def joint_table(problem: Problem, task: int) -> np.ndarray:

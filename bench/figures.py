@@ -355,7 +355,7 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict):
     for ax, (title, lay), mag in zip(axes.ravel(), panels, mags):
         tc = ax.tricontourf(tri, mag, levels=np.linspace(0, float(mag.max()) or 1.0, 31), cmap="viridis")
         outline(ax, problem, lw=0.8)
-        c = problem.candidates[np.asarray(lay)] * 1e3
+        c = problem.pad_xy(lay) * 1e3
         ax.scatter(c[:, 0], c[:, 1], color="red", s=18, zorder=3)
         ax.set_aspect("equal")
         ax.set_title(f"{title}\nmax |u| {mag.max():.3g} um", fontsize=8)

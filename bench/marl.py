@@ -191,7 +191,7 @@ def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
             cols.append(s[d])
         layouts = np.column_stack(cols[::-1])
         for t in range(problem.n_tasks):
-            best[t] = min(best[t], problem.oracle.evaluate(t, layouts)[:, 3].min())
+            best[t] = min(best[t], problem.measure(t, layouts)[:, 3].min())
     return best
 
 

@@ -31,7 +31,7 @@ def show_case(problem: Problem, out: Path) -> Path:
     ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
     outline(ax, problem)
     colors = plt.get_cmap("tab10")
-    for a, idx in enumerate(problem.action_sets):
+    for a, idx in enumerate(problem.candidate_sets):
         c = problem.candidates[idx] * 1e3
         ax.scatter(c[:, 0], c[:, 1], s=4, color=colors(a % 10), label=f"agent {a} ({len(idx)})")
     sup_pts = []
@@ -68,7 +68,7 @@ def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:
     fig.colorbar(tc, ax=ax, label="|u| (um)")
     outline(ax, problem)
     if layout is not None:  # None: the free response, no fixtures
-        c = problem.candidates[np.asarray(layout).ravel()] * 1e3
+        c = problem.pad_xy(layout) * 1e3
         ax.scatter(c[:, 0], c[:, 1], color="red", marker="o", s=30, label="fixtures")
     at = [ld.at for ld in problem.tasks[task].loads if ld.at is not None]
     if at:

@@ -118,7 +118,7 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
         if shipped is None or shipped["n_tasks"] != T:
             continue
         L = np.array([rec["layout"] for rec in shipped["tasks"]])
-        improved = sum(offer(k, L[k:k + 1], p.oracle.evaluate(k, L[k:k + 1])[:, 3]) for k in range(T))
+        improved = sum(offer(k, L[k:k + 1], p.measure(k, L[k:k + 1])[:, 3]) for k in range(T))
         prog.samples += T
         prog.log.append({"phase": "start", "from": f"the shipped reference of {mat}", "tasks_improved": improved,
                          "mean_m": float(best.mean())})
@@ -148,13 +148,13 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
         order = range(T) if rnd % 2 == 0 else range(T - 1, -1, -1)
         for k in order:
             tried = np.unique(np.vstack([layout[neighbours[k]], layout[k:k + 1]]), axis=0)
-            d = p.oracle.evaluate(k, tried)
+            d = p.measure(k, tried)
             prog.samples += len(tried)
             better = offer(k, tried, d[:, 3])
             found = []
 
             def fitness(L, k=k, found=found):
-                m = p.oracle.evaluate(k, L, power)
+                m = p.measure(k, L, power)
                 found.append((L, m[:, 3]))
                 return m[:, 5] if power else m[:, 3]
 
@@ -169,7 +169,7 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
              f"reference mean {1e6 * best.mean():.4g} um ({time.perf_counter() - t:.0f} s)")
         if improved == 0:
             break
-    final = np.array([p.oracle.evaluate(k, layout[k:k + 1])[0, 3] for k in range(T)])
+    final = np.array([p.measure(k, layout[k:k + 1])[0, 3] for k in range(T)])
     status = ["best-known"] * T
     lower: list[float | None] = [None] * T
     if p.joint_size * T <= effort.prove_limit:
@@ -253,7 +253,7 @@ def update(run_dir, echo=print, folder=None) -> dict:
         replaced = []
         for t, options in sorted(claims.items()):
             for _, lay, row in sorted(options, key=lambda o: o[0]):
-                u = float(p.oracle.evaluate(t, p.check_layouts([lay]))[0, 3])
+                u = float(p.measure(t, p.check_layouts([lay]))[0, 3])
                 if u < ref["tasks"][t]["max_deformation_m"] * (1 - 1e-9):
                     ref["tasks"][t] = {"layout": [int(x) for x in lay], "max_deformation_m": u,
                                        "status": "best-known", "lower_bound_m": None}

@@ -5,11 +5,14 @@ a team, docs/protocol.md), on the counted oracle:
 
 - each step presents one task (a drilling position, an operating condition); every agent observes
   the task's feature vector (``float32`` ``Box``, bounds = the range of the problem's features);
-- each agent answers with an index into its OWN candidate set (``Discrete(len(set))``); the joint
-  answer is a layout, evaluated once on the oracle (one counted sample per step, ``env.samples``);
+- each agent answers with an index into its OWN action set (``Discrete(len(set))``): a candidate,
+  or, where a robot places several pads (a pair end effector, m pads, an idle robot), one of its
+  feasible pad tuples (``problem.options``); the joint answer is a layout, evaluated once on the
+  oracle (one counted sample per step, ``env.samples``);
 - every agent receives the same reward: the seed paper's Gaussian reward by default, or the reference
   code's bell reward (``reward="bell"``); ``infos[agent]`` carries ``max_u``, ``max_uxy``, ``max_w``,
-  ``max_ux``, ``max_uy``, both rewards, the task index and the global layout;
+  ``max_ux``, ``max_uy``, both rewards, the task index, the global layout and the candidate indices
+  of the pads it placed (``pads``, -1 for none);
 - one episode is one pass over the tasks, in order or shuffled with the seed given to ``reset``;
   after the last task every agent is terminated and ``env.agents`` is empty.
 
@@ -108,7 +111,7 @@ class FixtureEnv(ParallelEnv):
         return self._obs(), {a: {"task": self.task} for a in self.agents}
 
     def layout(self, actions: dict) -> np.ndarray:
-        """Global candidate indices of a joint answer (one action per agent).
+        """Global action indices of a joint answer (one action per agent).
 
         Every action must be an integer (Python or numpy, not a bool, float or string) in
         ``0..n-1`` of its agent's own set; anything else is refused (one line, no sample spent).
@@ -127,7 +130,7 @@ class FixtureEnv(ParallelEnv):
                 raise CaseError(src, f"actions['{a}']", f"must be an integer in 0..{n - 1}, got {act!r}")
             if not 0 <= int(act) < n:
                 raise CaseError(src, f"actions['{a}']", f"{int(act)} is outside 0..{n - 1} (agent '{a}' "
-                                f"has {n} candidates)")
+                                f"has {n} actions)")
             out.append(self.problem.action_sets[i][int(act)])
         unknown = set(actions) - set(self.possible_agents)
         if unknown:
@@ -142,7 +145,7 @@ class FixtureEnv(ParallelEnv):
         row = d.row(0)
         # strict values: a number the step did not compute (soft_u) is None, not NaN (NaN != NaN)
         info = {**{k: (v if np.isfinite(v) else None) for k, v in row.items()}, "task": task,
-                "layout": layout[0].tolist()}
+                "layout": layout[0].tolist(), "pads": self.problem.pads(layout)[0].tolist()}
         r = row[self.reward_key]
         self._pos += 1
         done = self._pos >= len(self._order)

@@ -80,13 +80,17 @@ class FieldOracle:
         self.m0 = np.ascontiguousarray((self.P @ U0).T)  # (n_tasks, n_meas)
 
     def rows(self, cand: np.ndarray) -> np.ndarray:
-        """Row indices of candidates: (..., k) -> (..., k * per)."""
+        """Row indices of candidates: (..., k) -> (..., k * per); "no pad" (-1) gives rows -1."""
         cand = np.asarray(cand, dtype=np.int64)
-        return (cand[..., None] * self.per + np.arange(self.per)).reshape(*cand.shape[:-1], -1)
+        rows = (cand[..., None] * self.per + np.arange(self.per)).reshape(*cand.shape[:-1], -1)
+        if cand.size == 0 or cand.min() >= 0:
+            return rows
+        return np.where(np.repeat(cand, self.per, axis=-1) >= 0, rows, -1)
 
     def ensure(self, cand: np.ndarray, progress=None) -> int:
         """Compute the compliance columns of the candidates not yet done; returns how many."""
-        rows = np.unique(self.rows(np.unique(cand)[None, :]))
+        cand = np.unique(cand)
+        rows = np.unique(self.rows(cand[cand >= 0][None, :]))
         todo = rows[~self.done[rows]]
         for start in range(0, len(todo), CHUNK):
             r = todo[start:start + CHUNK]
@@ -166,10 +170,13 @@ class Oracle:
 
     def n_columns(self, cand: np.ndarray) -> int:
         """How many compliance columns the candidates have (rows of all active fields)."""
-        return sum(fo.per for fo in self.fields.values()) * len(np.unique(cand))
+        cand = np.unique(cand)
+        return sum(fo.per for fo in self.fields.values()) * int(np.count_nonzero(cand >= 0))
 
     def evaluate(self, task: int, layouts: np.ndarray, soft_power: float | None = None) -> np.ndarray:
         """Per layout over the measurement points: (L, 6) = max |ux|, |uy|, |w|, |u|, |u_xy|, soft |u|.
+
+        ``layouts``: (L, k) candidate indices of the pads, -1 for "no pad" (an idle robot).
 
         |u| is the full magnitude, |u_xy| the in-plane magnitude sqrt(ux^2 + uy^2). With
         ``soft_power`` p, the last column is the power mean (mean over the points of |u|^p)^(1/p), a
@@ -241,10 +248,14 @@ def _chol_solve(A: np.ndarray, b: np.ndarray, L: np.ndarray, y: np.ndarray, x: n
 
 
 @numba.njit(cache=True)
-def _response(C, H, d0, m0, rows, u, A, b, L, y, x) -> bool:
-    """Field values at the measurement points for one layout's constraint rows, written into ``u``
-    (A, b, L, y, x: scratch of at least the layout's row count)."""
-    k = rows.shape[0]
+def _response(C, H, d0, m0, given, u, A, b, L, y, x, rows) -> bool:
+    """Field values at the measurement points for one layout's constraint rows ``given``, written into
+    ``u``; rows -1 (no pad) are left out (A, b, L, y, x, rows: scratch of at least the row count)."""
+    k = 0
+    for i in range(given.shape[0]):
+        if given[i] >= 0:
+            rows[k] = given[i]
+            k += 1
     for p in range(u.shape[0]):
         u[p] = m0[p]
     if k == 0:
@@ -284,9 +295,10 @@ def _evaluate(Cb, Hb, db, mb, rb, Cm, Hm, dm, mm, rm, n_meas, power, blocks, out
     for blk in numba.prange(blocks):
         w, uv = np.empty(mb.shape[0]), np.empty(mm.shape[0])
         A, L, b, y, x = np.empty((k, k)), np.empty((k, k)), np.empty(k), np.empty(k), np.empty(k)
+        rows = np.empty(k, dtype=np.int64)
         for ell in range(blk * n // blocks, (blk + 1) * n // blocks):
-            ok_b = _response(Cb, Hb, db, mb, rb[ell], w, A, b, L, y, x)
-            ok_m = _response(Cm, Hm, dm, mm, rm[ell], uv, A, b, L, y, x)
+            ok_b = _response(Cb, Hb, db, mb, rb[ell], w, A, b, L, y, x, rows)
+            ok_m = _response(Cm, Hm, dm, mm, rm[ell], uv, A, b, L, y, x, rows)
             ax = ay = aw = au = axy = 0.0
             for p in range(n_meas):
                 px, py, pz = uv[p], uv[n_meas + p], w[p]

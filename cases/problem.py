@@ -1,10 +1,15 @@
 """The fixture-planning problem and its counted evaluator.
 
 A :class:`Problem` is a part + material + base supports + fixture candidates + agents (disjoint
-action sets) + tasks + reward settings. A *layout* is one candidate index per agent, each from the
-agent's own set (global candidate indices, in agent order). Planners see the problem's structure
-and evaluate layouts only through an :class:`Evaluator`, which counts every layout as one sample,
-charges one sample per compliance column read, and refuses to pass a hard budget.
+action sets) + tasks + reward settings. A *layout* is one action per agent, each from the agent's
+own set (global action indices, in agent order). An action is an *option*: the pads the robot
+places (``Problem.options``, one row of ``m`` candidate indices, -1 for "no pad"). With one pad per
+robot (the usual case, :attr:`~fixbench.cases.spec.Effector.simple`) option ``i`` is candidate ``i``;
+with pairs, ``m`` pads or idle robots the options are enumerated per robot. ``Problem.points`` gives
+each option's place in the plane (its pads' coordinates, 2 m numbers) for planners that search by
+geometry. Planners see the problem's structure and evaluate layouts only through an
+:class:`Evaluator`, which counts every layout as one sample, charges one sample per compliance
+column read, and refuses to pass a hard budget.
 
 >>> problem = load_problem("wing_panel_small")
 >>> ev = problem.evaluator(budget=100)
@@ -16,6 +21,7 @@ charges one sample per compliance column read, and refuses to pass a hard budget
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 import pickle
 from collections import OrderedDict
@@ -29,7 +35,7 @@ import numpy as np
 
 from fixbench.cases import cache, rewards
 from fixbench.cases.errors import BudgetExhausted, CaseError, HeldOutTask
-from fixbench.cases.spec import CaseSpec, load_case_spec
+from fixbench.cases.spec import CaseSpec, Effector, load_case_spec
 
 if TYPE_CHECKING:  # the FE code is imported when a model is first built (fast start of light commands)
     from fixbench.cases.fem import PlateModel
@@ -109,8 +115,46 @@ class Problem:
         self.candidates = spec.candidates
         self.tasks = spec.tasks
         self.n_agents = spec.n_agents
-        self.action_sets = _action_sets(spec)
+        self.candidate_sets = _candidate_sets(spec)
+        self.options, self.action_sets = _options(spec, self.candidate_sets)
         self.features = np.array([t.features for t in spec.tasks])
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """(n_options, 2 m) coordinates (m) of each option's pads; a "no pad" sits at its robot's
+        candidates' centroid (a place for distances, not a pad)."""
+        if self.spec.effector.simple:
+            return self.candidates
+        out = np.empty((len(self.options), self.options.shape[1], 2))
+        for s, acts in zip(self.candidate_sets, self.action_sets):
+            opt = self.options[acts]
+            out[acts] = np.where(opt[..., None] >= 0, self.candidates[np.maximum(opt, 0)],
+                                 self.candidates[s].mean(axis=0))
+        return out.reshape(len(self.options), -1)
+
+    def pads(self, layouts) -> np.ndarray:
+        """Candidate indices of the pads that ``layouts`` place: (L, n_agents * m), -1 for none.
+
+        With a pad limit the pads are handed out in robot order until it is reached (see
+        :class:`~fixbench.cases.spec.Effector`). Layouts are not checked here.
+        """
+        arr = np.atleast_2d(np.asarray(layouts, dtype=np.int64))
+        if self.spec.effector.simple:
+            return arr
+        out = self.options[arr].reshape(len(arr), -1)
+        limit = self.spec.effector.pads
+        if limit:
+            out = np.where(np.cumsum(out >= 0, axis=1) > limit, -1, out)
+        return out
+
+    def pad_xy(self, layout) -> np.ndarray:
+        """(k, 2) coordinates (m) of the pads one layout places (for drawing it)."""
+        pads = self.pads(np.asarray(layout, dtype=np.int64).reshape(1, -1))[0]
+        return self.candidates[pads[pads >= 0]]
+
+    def measure(self, task: int, layouts, soft_power: float | None = None) -> np.ndarray:
+        """Uncounted oracle maxima (L, 6) of layouts (analysis and references, never a planner)."""
+        return self.oracle.evaluate(task, self.pads(layouts), soft_power)
 
     @property
     def n_tasks(self) -> int:
@@ -123,7 +167,7 @@ class Problem:
 
     def _key(self) -> str:
         """Hash of everything the model and oracle depend on (all of the spec but the agents)."""
-        content = replace(self.spec, n_agents=1, agent_regions=())
+        content = replace(self.spec, n_agents=1, agent_regions=(), effector=Effector())
         return hashlib.sha1(pickle.dumps((content, self.mesh_scale))).hexdigest()
 
     @cached_property
@@ -141,8 +185,8 @@ class Problem:
 
     @cached_property
     def _owner(self) -> np.ndarray:
-        """Agent owning each candidate (-1: none)."""
-        owner = np.full(len(self.candidates), -1, dtype=np.int64)
+        """Agent owning each action (-1: none)."""
+        owner = np.full(len(self.options), -1, dtype=np.int64)
         for a, allowed in enumerate(self.action_sets):
             owner[allowed] = a
         return owner
@@ -150,16 +194,17 @@ class Problem:
     def check_layouts(self, layouts) -> np.ndarray:
         """Layouts as an (L, n_agents) int array, each entry from its agent's own set."""
         arr = np.atleast_2d(np.asarray(layouts))
+        what = "candidate" if self.spec.effector.simple else "action"
         if arr.ndim != 2 or arr.shape[1] != self.n_agents or not np.issubdtype(arr.dtype, np.integer):
             raise CaseError(self.spec.source, "layout",
-                            f"must be {self.n_agents} integer candidate indices per layout")
+                            f"must be {self.n_agents} integer {what} indices per layout")
         arr = arr.astype(np.int64)
-        inside = (arr >= 0) & (arr < len(self.candidates))
+        inside = (arr >= 0) & (arr < len(self.options))
         ok = inside & (self._owner[np.where(inside, arr, 0)] == np.arange(self.n_agents))
         if not ok.all():
             a = int(np.flatnonzero((~ok).any(axis=0))[0])
             allowed = self.action_sets[a]
-            raise CaseError(self.spec.source, "layout", f"candidate {int(arr[~ok[:, a], a][0])} is not "
+            raise CaseError(self.spec.source, "layout", f"{what} {int(arr[~ok[:, a], a][0])} is not "
                             f"in agent {a}'s set ({allowed[0]}..{allowed[-1]})")
         return arr
 
@@ -187,8 +232,8 @@ class Problem:
         task = self.check_task(task)
         if layout is None:
             return self.model.solve_direct(task, np.zeros((0, 2)))
-        layout = self.check_layouts(layout)[0]
-        return self.model.solve_direct(task, self.candidates[layout])
+        pads = self.pads(self.check_layouts(layout))[0]
+        return self.model.solve_direct(task, self.candidates[pads[pads >= 0]])
 
     def displacement_at(self, task: int, layout, points: np.ndarray) -> np.ndarray:
         """(ux, uy, w) in metres at ``points`` ((n, 2), m) for ``layout`` (None: the free response),
@@ -273,7 +318,7 @@ class Evaluator:
         p = self.problem
         task, layouts = self.check_open(task), p.check_layouts(layouts)
         self.charge(len(layouts))
-        return p.deformation(p.oracle.evaluate(task, layouts, soft_power))
+        return p.deformation(p.measure(task, layouts, soft_power))
 
     def compliance(self, field: str, candidates) -> tuple[np.ndarray, np.ndarray]:
         """Compliance data of candidates (coupling rows C, measurement influence H).
@@ -313,7 +358,39 @@ def decode_layouts(sets: list[np.ndarray], start: int, stop: int) -> np.ndarray:
     return out
 
 
-def _action_sets(spec: CaseSpec) -> list[np.ndarray]:
+#: most options (actions of all robots together) a case may enumerate
+MAX_OPTIONS = 10**7
+
+
+def _options(spec: CaseSpec, sets: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Every robot's options (pads it may place) and the option indices of each robot's set."""
+    eff = spec.effector
+    if eff.simple:
+        return np.arange(len(spec.candidates), dtype=np.int64)[:, None], sets
+    rows, acts, start = [], [], 0
+    for a, s in enumerate(sets):
+        if len(s) < eff.per_agent:
+            raise CaseError(spec.source, "agents.fixtures_per_agent", f"agent {a} has {len(s)} candidates, "
+                            f"fewer than its {eff.per_agent} pads")
+        if math.comb(len(s), eff.per_agent) * len(sets) > MAX_OPTIONS:
+            raise CaseError(spec.source, "agents.fixtures_per_agent", f"{len(sets)} robots choosing "
+                            f"{eff.per_agent} of {len(s)} candidates each is over {MAX_OPTIONS:,} actions")
+        tup = np.array(list(itertools.combinations(s, eff.per_agent)), dtype=np.int64)
+        if eff.kind == "pair":
+            d = np.linalg.norm(spec.candidates[tup[:, 0]] - spec.candidates[tup[:, 1]], axis=1)
+            tup = tup[(d <= eff.span * (1 + 1e-9)) & (d >= 2 * spec.fixture_radius * (1 - 1e-9))]
+            if not len(tup):
+                raise CaseError(spec.source, "agents.span_mm", f"agent {a} has no two candidates "
+                                f"{2 * spec.fixture_radius * 1e3:g} to {eff.span * 1e3:g} mm apart")
+        if eff.idle:
+            tup = np.vstack([tup, np.full((1, eff.per_agent), -1)])
+        rows.append(tup)
+        acts.append(np.arange(start, start + len(tup), dtype=np.int64))
+        start += len(tup)
+    return np.vstack(rows), acts
+
+
+def _candidate_sets(spec: CaseSpec) -> list[np.ndarray]:
     n = len(spec.candidates)
     if spec.agent_regions:
         import shapely
@@ -327,6 +404,10 @@ def _action_sets(spec: CaseSpec) -> list[np.ndarray]:
 
 
 def load_problem(case: str | Path, material: str | None = None, agents: int | None = None,
-                 mesh_scale: float = 1.0) -> Problem:
-    """A problem from a catalog name or a TOML path, optionally with another material/agent count."""
-    return Problem(load_case_spec(case, material, agents), mesh_scale)
+                 mesh_scale: float = 1.0, fixtures_per_agent: int | None = None) -> Problem:
+    """A problem from a catalog name or a TOML path, optionally with another material, agent count
+    or number of pads per agent."""
+    spec = load_case_spec(case, material, agents)
+    if fixtures_per_agent is not None:
+        spec = spec.with_fixtures_per_agent(fixtures_per_agent)
+    return Problem(spec, mesh_scale)

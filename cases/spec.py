@@ -119,6 +119,30 @@ class Validation:
 
 
 @dataclass(frozen=True)
+class Effector:
+    """What one robot places: ``per_agent`` pads from its own candidate set.
+
+    ``independent``: any ``per_agent`` distinct candidates of the set; ``pair`` (``per_agent`` = 2): a
+    two-pad end effector, two candidates at most ``span`` apart (metres) and at least two pad radii
+    (its pads do not overlap). ``idle``: each robot
+    also has a "no pad" action. ``pads`` (0: no limit): the most pads placed in all; a layout asking for
+    more is served in robot order (robot 0's pads first), so the robots that come too late place none:
+    n robots sharing fewer pads than they could hold.
+    """
+
+    per_agent: int = 1
+    kind: str = "independent"
+    span: float = 0.0  # pair: most distance between its pads' centres (m); least: two pad radii
+    idle: bool = False
+    pads: int = 0
+
+    @property
+    def simple(self) -> bool:
+        """One pad per robot, never idle, no pad limit: an action is a candidate."""
+        return self.per_agent == 1 and not self.idle and self.pads == 0
+
+
+@dataclass(frozen=True)
 class CaseSpec:
     name: str
     source: str
@@ -140,6 +164,7 @@ class CaseSpec:
     measure_spacing: float
     validation: Validation | None = None
     candidates_dropped: int = 0  # grid points outside the part or inside a hole, left out of candidates
+    effector: Effector = Effector()
 
     def with_material(self, material: Material) -> CaseSpec:
         return replace(self, material=material)
@@ -154,6 +179,15 @@ class CaseSpec:
             raise CaseError(self.source, "agents.count", f"{n_agents} agents but only "
                             f"{len(self.candidates)} fixture candidates")
         return replace(self, n_agents=n_agents)
+
+    def with_fixtures_per_agent(self, m: int) -> CaseSpec:
+        """Each robot places ``m`` independent pads (a pair effector keeps its 2)."""
+        if m < 1:
+            raise CaseError(self.source, "agents.fixtures_per_agent", f"must be at least 1, got {m}")
+        if self.effector.kind == "pair" and m != 2:
+            raise CaseError(self.source, "agents.fixtures_per_agent", f"a pair effector places 2 pads, "
+                            f"got {m}")
+        return replace(self, effector=replace(self.effector, per_agent=m))
 
     def with_mesh_scale(self, factor: float) -> CaseSpec:
         """Every element size multiplied by ``factor`` (0.5 = twice as fine)."""
@@ -257,7 +291,7 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
     mesh = _mesh(top.table("mesh", required=True), tasks)
     supports = tuple(_support(r, polygon) for r in top.tables("supports"))
     radius, holds, candidates, dropped = _fixtures(top.table("fixtures", required=True), polygon)
-    n_agents, regions = _agents(top.table("agents", required=True), candidates)
+    n_agents, regions, effector = _agents(top.table("agents", required=True), candidates)
 
     reward = top.table("reward") or Reader({}, source, "reward")
     sigma = (reward.number("sigma_x", "length", 10e-6, positive=True),
@@ -279,7 +313,7 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
                     mesh=mesh, supports=supports, fixture_radius=radius, fixture_holds=holds,
                     candidates=candidates, n_agents=n_agents, agent_regions=regions, tasks=tasks,
                     reward_sigma=sigma, measure_spacing=spacing, validation=validation,
-                    candidates_dropped=dropped)
+                    candidates_dropped=dropped, effector=effector)
 
 
 def _material(r: Reader) -> Material:
@@ -486,8 +520,29 @@ def _agents(r: Reader, candidates: np.ndarray):
             owner[inside] = i
     elif count > len(candidates):
         raise r.error("count", f"{count} agents but only {len(candidates)} fixture candidates")
+    effector = _effector(r, count)
     r.finish()
-    return count, tuple(regions)
+    return count, tuple(regions), effector
+
+
+def _effector(r: Reader, n_agents: int) -> Effector:
+    """The [agents] keys of what one robot places (see :class:`Effector`)."""
+    m = r.integer("fixtures_per_agent", 1, minimum=1)
+    kind = r.text("effector", "independent", ("independent", "pair"))
+    span = r.number("span", "length", 0.0, positive=True)
+    if kind == "pair":
+        if m != 2:
+            raise r.error("fixtures_per_agent", f"a pair effector places 2 pads, got {m}")
+        if not span:
+            raise r.error("span_<unit>", "missing: a pair effector needs its span (e.g. span_mm)")
+    elif span:
+        raise r.error("span_mm", "only a pair effector has a span (effector = \"pair\")")
+    idle = r.raw("idle", False, (bool,))
+    pads = r.integer("pads", 0, minimum=1)
+    if pads and pads >= n_agents * m:
+        raise r.error("pads", f"{pads} pads is no limit for {n_agents} robots of {m} pads each "
+                              f"(leave it out, or give fewer than {n_agents * m})")
+    return Effector(m, kind, span, idle, pads)
 
 
 def _load(r: Reader, polygon: shapely.Polygon) -> Load:

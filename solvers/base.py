@@ -129,13 +129,14 @@ class PlanResult:
     seed: int
     budget: int | None
     samples: int  # samples the planner spent online
-    layouts: np.ndarray  # (n_tasks, n_agents) global candidate indices
+    layouts: np.ndarray  # (n_tasks, n_agents) global action indices (= candidates, one pad a robot)
     max_deformation: np.ndarray  # (n_tasks,) metres, max |u| of each task's layout
     reward: np.ndarray  # (n_tasks,) Gaussian reward of each task's layout
     trace: np.ndarray  # (rows, 4): TracedEvaluator.TRACE_COLUMNS
     info: dict = field(default_factory=dict)  # planner-specific figures (gaps, iterations, ...)
     reward_bell: np.ndarray | None = None  # (n_tasks,) the reference code's bell reward
     held_out: np.ndarray | None = None  # held-out track: the tasks acted on without samples
+    pads: np.ndarray | None = None  # (n_tasks, n_agents * m) candidates the layouts place (-1: none)
 
     @property
     def scored_tasks(self) -> np.ndarray:
@@ -157,6 +158,7 @@ class PlanResult:
                 "worst_max_deformation_m": float(self.max_deformation.max()),
                 "mean_reward": float(self.reward.mean()), "config": self.config, "info": self.info,
                 "per_task": [{"task": t, "layout": self.layouts[t].tolist(),
+                              **({} if self.pads is None else {"pads": self.pads[t].tolist()}),
                               "max_deformation_m": float(self.max_deformation[t]),
                               "reward": float(self.reward[t])} for t in range(len(self.layouts))]}
 
@@ -214,12 +216,13 @@ class Planner(ABC):
         layouts = problem.check_layouts(layouts)
         if mode == "shared" and not (layouts == layouts[0]).all():
             raise PlannerError(f"planner '{self.name}' returned different layouts in shared mode")
-        maxima = np.vstack([problem.oracle.evaluate(t, layouts[t:t + 1]) for t in range(problem.n_tasks)])
+        maxima = np.vstack([problem.measure(t, layouts[t:t + 1]) for t in range(problem.n_tasks)])
         scored = problem.deformation(maxima)
         return PlanResult(self.name, _config_dict(self.config), self.config.hash(), problem.name,
                           problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
                           scored.max_u, scored.reward_gaussian,
-                          np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell, held)
+                          np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell, held,
+                          None if problem.spec.effector.simple else problem.pads(layouts))
 
 
 def _config_dict(config: PlannerConfig) -> dict:

@@ -193,7 +193,8 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
                 "part_features": part_features(problem).tolist(),
                 "material_features": material_features(problem).tolist(),
                 "task_features": task_features(problem, t).tolist(),
-                "positions_m": (problem.candidates[result.layouts[t]] - lo).tolist(),
+                "positions_m": (problem.points[result.layouts[t]]
+                                - np.tile(lo, problem.points.shape[1] // 2)).tolist(),
                 "box_m": size.tolist(), "score_m": float(result.max_deformation[t])})
     library = {"format": FORMAT, "library_samples": int(sum(s["samples"] for s in sources)),
                "sources": sources, "entries": entries}
@@ -234,9 +235,14 @@ def _entry_vector(e: dict, cfg: CBRConfig) -> np.ndarray:
 def adapt(problem: Problem, entry: dict, normalised: bool) -> np.ndarray:
     """A library entry's positions mapped onto this problem's agents (see module docstring)."""
     lo, size = _box(problem)
-    pos = np.asarray(entry["positions_m"], dtype=float).reshape(-1, 2)
-    pos = lo + (pos / np.asarray(entry["box_m"]) * size if normalised else pos)
-    xy = problem.candidates
+    pos = np.asarray(entry["positions_m"], dtype=float)
+    pos = pos.reshape(len(pos), -1)  # a row per stored robot: its pads' (x, y)
+    k = pos.shape[1] // 2
+    pos = np.tile(lo, k) + (pos * np.tile(size / np.asarray(entry["box_m"]), k) if normalised else pos)
+    xy = problem.points
+    if pos.shape[1] != xy.shape[1]:  # robots that placed another number of pads: match their centres
+        pos = pos.reshape(len(pos), -1, 2).mean(axis=1)
+        xy = xy.reshape(len(xy), -1, 2).mean(axis=1)
     sets = problem.action_sets
     cost = np.array([[np.min(np.linalg.norm(xy[s] - p, axis=1)) for p in pos] for s in sets])
     agents, which = linear_sum_assignment(cost)
@@ -333,7 +339,7 @@ class CaseBasedReasoning(Planner):
         vals = ev.evaluate_shared(first) if task is None else ev.evaluate(task, first).max_u
         known = dict(zip(map(tuple, first.tolist()), vals.tolist()))
         start = first[int(np.argmin(vals))]
-        xy = problem.candidates
+        xy = problem.points
         pools = [s[np.argsort(np.linalg.norm(xy[s] - xy[start[a]], axis=1), kind="stable")[:max(cfg.pool, 1)]]
                  for a, s in enumerate(problem.action_sets)]
         return coordinate_descent(problem, ev, start, pools, budget - len(first), task, known)

@@ -18,7 +18,8 @@ Encodings:
   candidate with a KD-tree per agent. Why not (b), a continuous index rounded: the candidate order
   is not spatially meaningful (a grid is numbered row by row, so index i+1 can be across the part),
   and a velocity in index space would jump between rows; in the plane, neighbours in space are
-  neighbours in the search, which is what the deformation field is smooth in.
+  neighbours in the search, which is what the deformation field is smooth in. A robot that places
+  m pads has a point per pad (2 m variables, ``Problem.points``), snapped to its nearest action.
 
 Fitness: by default the *soft max* of |u|, the power mean over the measurement points with
 ``soft_power`` (same solve, no extra sample; why: see :mod:`fixbench.solvers.greedy`), the max itself with
@@ -266,17 +267,18 @@ class SwarmPlanner(_EvolutionaryPlanner):
 
     def _encoding(self, problem: Problem):
         sets = problem.action_sets
-        points = [problem.candidates[s] for s in sets]
+        points = [problem.points[s] for s in sets]  # an action's pads' (x, y), 2 m numbers
+        d = problem.points.shape[1]
         trees = [cKDTree(p) for p in points]
         pad = 0.5 * float(np.median(cKDTree(problem.candidates).query(problem.candidates, k=2)[0][:, 1]))
         xl = np.concatenate([p.min(axis=0) - pad for p in points])
         xu = np.concatenate([p.max(axis=0) + pad for p in points])
 
         def decode(X: np.ndarray) -> np.ndarray:
-            return np.column_stack([s[t.query(X[:, 2 * a:2 * a + 2])[1]]
+            return np.column_stack([s[t.query(X[:, d * a:d * a + d])[1]]
                                     for a, (s, t) in enumerate(zip(sets, trees))])
 
         def encode(layouts: np.ndarray) -> np.ndarray:
-            return problem.candidates[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
+            return problem.points[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
 
         return xl, xu, float, decode, encode

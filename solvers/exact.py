@@ -31,6 +31,12 @@ from different agents (computed from the compliance data already read); a layout
 exceed M would be cut off, so the proof rests on that bound; ``info["big_m_ok"]`` checks it on the
 returned layouts. The MILP is dense in the compliance columns: above ``max_milp_columns`` the
 planner refuses with a :class:`PlannerError` rather than run out of memory or time.
+
+Robots that place m pads (``Effector``): the binaries are the robots' actions (one per agent), a
+candidate's pad is placed when an action holding it is chosen (a linear map of the binaries),
+G_r counts m pads per agent, M also covers pairs of pads of one robot, and a pad limit is one more
+row (a layout over the limit is never better than one within it: the pads handed out are a layout
+within it).
 """
 
 from __future__ import annotations
@@ -108,7 +114,7 @@ class Exact(Planner):
     # -- mixed-integer program ----------------------------------------------------------------------
 
     def _milp(self, problem: Problem, ev: TracedEvaluator, mode: str):
-        cand = np.concatenate(problem.action_sets)
+        cand = np.concatenate(problem.candidate_sets)
         fields = list(problem.oracle.fields)  # which fields are active: structure, not data
         per = {f: problem.oracle.fields[f].per for f in fields}
         columns = sum(per.values()) * len(cand)
@@ -128,14 +134,16 @@ class Exact(Planner):
             free = [ev.unconstrained(f, t) for t in range(T)]
             data[f] = {"C": C[back][:, rows], "H": H[back], "d0": np.array([d[rows] for d, _ in free]),
                        "m0": np.array([m for _, m in free]), "per": per[f]}
-        agent = np.repeat(np.arange(problem.n_agents), [len(a) for a in problem.action_sets])
+        agent = np.repeat(np.arange(problem.n_agents), [len(a) for a in problem.candidate_sets])
+        choice = _choices(problem, cand)
         groups = [list(range(T))] if mode == "shared" else [[t] for t in range(T)]
         layouts = np.zeros((T, problem.n_agents), dtype=np.int64)
         lower = np.zeros(T)
         big_m_ok = True
         for tasks in groups:
-            z, bound, ok = self._solve_milp(data, agent, tasks, problem.n_agents)
-            layout = np.array([cand[agent == a][np.argmax(z[agent == a])] for a in range(problem.n_agents)])
+            z, bound, ok = self._solve_milp(data, agent, tasks, problem.n_agents, choice)
+            layout = np.array([choice.actions[choice.agent == a][np.argmax(z[choice.agent == a])]
+                               for a in range(problem.n_agents)])
             layouts[tasks] = layout
             lower[tasks] = bound
             big_m_ok &= ok
@@ -149,11 +157,13 @@ class Exact(Planner):
                          "gap": gap, "gaps": gaps.tolist(), "lower_bound": lower.tolist(),
                          "big_m_ok": bool(big_m_ok)}
 
-    def _solve_milp(self, data: dict, agent: np.ndarray, tasks: list[int], n_agents: int):
+    def _solve_milp(self, data: dict, agent: np.ndarray, tasks: list[int], n_agents: int, choice: _Choices):
         """One MILP over ``tasks`` sharing z; returns (z, proven lower bound in metres, big-M ok)."""
-        n_c = len(agent)
+        n_c = choice.Y.shape[1]  # binaries: one per action (= per candidate with one pad a robot)
+        m_pads = choice.per_agent
         s_u = max(np.abs(d["m0"][tasks]).max() for d in data.values()) or 1.0
-        big_m = {f: self.config.big_m_factor * _pair_force_bound(d, agent, tasks) for f, d in data.items()}
+        big_m = {f: self.config.big_m_factor * _pair_force_bound(d, agent, tasks, m_pads > 1)
+                 for f, d in data.items()}
         n_comp = sum(len(_COMPONENTS[f]) for f in data)
         n_meas = sum(d["m0"].shape[1] for d in data.values()) // n_comp
         offset = {}  # (task, field) -> (first force variable, first measurement variable)
@@ -177,15 +187,19 @@ class Exact(Planner):
             lo.append(np.broadcast_to(low, n_rows))
             hi.append(np.broadcast_to(high, n_rows))
 
-        one_hot = sp.csr_matrix((np.ones(n_c), (agent, np.arange(n_c))), shape=(n_agents, n_c))
-        add([(0, one_hot)], 1.0, 1.0)  # one pad per agent
+        one_hot = sp.csr_matrix((np.ones(n_c), (choice.agent, np.arange(n_c))), shape=(n_agents, n_c))
+        add([(0, one_hot)], 1.0, 1.0)  # one action per agent
+        if choice.limit:  # at most `pads` pads in all
+            add([(0, sp.csr_matrix(choice.n_pads[None, :].astype(float)))], -np.inf, float(choice.limit))
         for t in tasks:
             comps = []
             for f, d in data.items():
                 (l0, u0), per, C, H, M = offset[t, f], d["per"], d["C"], d["H"], big_m[f]
                 nr, nm = C.shape[0], H.shape[1]
-                owner = np.repeat(np.arange(n_c), per)  # candidate of each row
-                z_of_row = sp.csr_matrix((np.ones(nr), (np.arange(nr), owner)), shape=(nr, n_c))
+                owner = np.repeat(np.arange(len(agent)), per)  # candidate of each row
+                # a row's pad is placed when an action holding its candidate is chosen
+                z_of_row = (sp.csr_matrix((np.ones(nr), (np.arange(nr), owner)), shape=(nr, len(agent)))
+                            @ choice.Y).tocsr()
                 eye = sp.identity(nr, format="csr")
                 add([(l0, eye), (0, -z_of_row)], -np.inf, 0.0)  # l_r <= z_j
                 add([(l0, -eye), (0, -z_of_row)], -np.inf, 0.0)  # -l_r <= z_j
@@ -193,8 +207,8 @@ class Exact(Planner):
                 d0 = d["d0"][t]
                 s_d = np.abs(d0).max() or 1.0
                 comp = np.arange(nr) % per
-                reach = sum(np.abs(C[:, (agent[owner] == a) & (comp == c)]).max(axis=1)
-                            for a in range(n_agents) for c in range(per))
+                reach = m_pads * sum(np.abs(C[:, (agent[owner] == a) & (comp == c)]).max(axis=1)
+                                     for a in range(n_agents) for c in range(per))
                 G = np.abs(d0) + M * reach
                 CM = -M / s_d * C
                 add([(l0, CM), (0, z_of_row.multiply(G[:, None] / s_d))], -np.inf, (G - d0) / s_d)
@@ -231,14 +245,40 @@ class Exact(Planner):
         return res.x[:n_c], max(0.0, bound) * s_u, ok
 
 
+@dataclass(frozen=True)
+class _Choices:
+    """The MILP's binaries: one per action of every agent, and the pads each places."""
+
+    actions: np.ndarray  # action index of each binary
+    agent: np.ndarray  # its agent
+    Y: sp.csr_matrix  # (candidates in MILP order, binaries): 1 where the action places the candidate
+    n_pads: np.ndarray  # pads each action places
+    per_agent: int
+    limit: int  # most pads in all (0: none)
+
+
+def _choices(problem: Problem, cand: np.ndarray) -> _Choices:
+    """Binaries of the MILP; ``cand`` the candidates in the MILP's order (by agent)."""
+    eff = problem.spec.effector
+    actions = np.concatenate(problem.action_sets)
+    agent = np.repeat(np.arange(problem.n_agents), [len(a) for a in problem.action_sets])
+    where = np.full(len(problem.candidates), -1, dtype=np.int64)
+    where[cand] = np.arange(len(cand))
+    opts = problem.options[actions]
+    b, k = np.nonzero(opts >= 0)
+    Y = sp.csr_matrix((np.ones(len(b)), (where[opts[b, k]], b)), shape=(len(cand), len(actions)))
+    return _Choices(actions, agent, Y, (opts >= 0).sum(axis=1), eff.per_agent, eff.pads)
+
+
 def _directions(k: int) -> np.ndarray:
     """Unit vectors of {-1, 0, 1}^k without 0: the facets of the polyhedral norm."""
     e = np.array([v for v in itertools.product((-1.0, 0.0, 1.0), repeat=k) if any(v)])
     return e / np.linalg.norm(e, axis=1)[:, None]
 
 
-def _pair_force_bound(d: dict, agent: np.ndarray, tasks: list[int]) -> float:
-    """Largest |pad force| over every single pad and every pair of pads of different agents.
+def _pair_force_bound(d: dict, agent: np.ndarray, tasks: list[int], same_agent: bool = False) -> float:
+    """Largest |pad force| over every single pad and every pair of pads of different agents (of any
+    agents with ``same_agent``, when a robot places several pads).
 
     Pairs whose coupling block is numerically singular (overlapping pads) are skipped: the oracle
     refuses such layouts too.
@@ -247,7 +287,7 @@ def _pair_force_bound(d: dict, agent: np.ndarray, tasks: list[int]) -> float:
     n_c = len(agent)
     rows = np.arange(n_c)[:, None] * per + np.arange(per)
     i, j = np.triu_indices(n_c, 1)
-    keep = agent[i] != agent[j]
+    keep = np.ones(len(i), dtype=bool) if same_agent else agent[i] != agent[j]
     force = 0.0
     for r in (rows, np.concatenate([rows[i[keep]], rows[j[keep]]], axis=1)):
         A = C[r[:, :, None], r[:, None, :]]

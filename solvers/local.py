@@ -9,7 +9,8 @@ agents brings no improvement, the neighbourhood doubles, up to the agent's whole
 a round without a move is a person-by-person optimum (no single agent can improve), and the search
 *kicks*: ``kick_agents`` agents, drawn at random, jump to random candidates of their sets, and the
 descent goes on from there (iterated local search; each kick starts from the best optimum found so
-far). Layouts already evaluated on the task are never paid for twice.
+far). Layouts already evaluated on the task are never paid for twice. "Nearest" is distance between
+actions in ``Problem.points``: for a robot that places m pads, its pads' coordinates together.
 
 Fitness: the soft max of |u| (power mean over the measurement points, ``soft_power``; why: see
 :mod:`fixbench.solvers.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is
@@ -87,7 +88,7 @@ class LocalSearch(Planner):
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         p = cfg.soft_power or None
-        trees = [cKDTree(problem.candidates[s]) for s in problem.action_sets]
+        trees = [cKDTree(problem.points[s]) for s in problem.action_sets]
         if mode == "shared":
             require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
             n = cfg.samples_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks)
@@ -109,7 +110,7 @@ def local_search(problem: Problem, fitness, budget: int, starts: np.ndarray | No
     traced evaluator keeps the best); ``trees``: a KD-tree per agent over its candidates."""
     sets, n = problem.action_sets, problem.n_agents
     if trees is None:
-        trees = [cKDTree(problem.candidates[s]) for s in sets]
+        trees = [cKDTree(problem.points[s]) for s in sets]
     seen: dict[tuple, float] = {}
 
     def evaluate(layouts: np.ndarray) -> np.ndarray:
@@ -154,7 +155,7 @@ def local_search(problem: Problem, fitness, budget: int, starts: np.ndarray | No
             continue
         k = width[a]
         if k > 0:
-            _, idx = trees[a].query(problem.candidates[layout[a]], k=k + 1)
+            _, idx = trees[a].query(problem.points[layout[a]], k=k + 1)
             alts = sets[a][np.atleast_1d(idx)]
             alts = alts[alts != layout[a]][:k]
             if cfg.explore:

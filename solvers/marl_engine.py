@@ -33,7 +33,8 @@ class StackedQ(nn.Module):
     """N MLPs of the same shape, all weights in one flat parameter (one batched matmul per layer
     for all agents; one clip, one fused AdamW step and one target lerp per update for all of them).
 
-    Output width is the largest action set; the padded actions of smaller sets are masked.
+    Output width is the largest action set (one head of the largest candidate set per pad when a
+    robot places several: :func:`_heads`); padded outputs are never chosen.
     Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) from ``generator``, never from torch's
     global generator; without one the weights are zeros, for a network whose weights are loaded next
     (the target network, a saved network). Training uses
@@ -83,12 +84,21 @@ class StackedQ(nn.Module):
         """Q of the chosen actions only: x (N, B, in), a (N, B) -> (N, B), and what :meth:`backward` needs.
 
         Equal to ``forward(x).gather(2, a[..., None])``; the output layer computes only the chosen
-        columns (it is most of the network's work on large action sets).
+        columns (it is most of the network's work on large action sets). Factored (a robot places m
+        pads): ``a`` (N, B, m) names one output column per pad and the Q is their sum,
+        ``forward(x).gather(2, a).sum(2)``.
         """
         w, b = self.weights()
         h0 = torch.bmm(x, w[0]).add_(b[0]).relu_()
         h1 = torch.bmm(h0, w[1]).add_(b[1]).relu_()
         h2 = torch.bmm(h1, w[2]).add_(b[2]).relu_()
+        if a.dim() == 3:  # factored: the sum of one output per pad, a (N, B, m) output columns
+            nb, m = a.shape[1], a.shape[2]
+            flat = a.reshape(a.shape[0], nb * m)
+            w3a = w[3].gather(2, flat[:, None, :].expand(-1, w[3].shape[1], -1)).transpose(1, 2)
+            w3a = w3a.reshape(a.shape[0], nb, m, -1)  # (N, B, m, H)
+            q = (h2[:, :, None, :] * w3a).sum(dim=3).sum(dim=2) + b[3][:, 0].gather(1, flat).reshape(-1, nb, m).sum(2)
+            return q, (x, a, h0, h1, h2, w3a)
         w3a = w[3].gather(2, a[:, None, :].expand(-1, w[3].shape[1], -1)).transpose(1, 2)  # (N, B, H)
         q = (h2 * w3a).sum(dim=2) + b[3][:, 0].gather(1, a)
         return q, (x, a, h0, h1, h2, w3a)
@@ -103,11 +113,19 @@ class StackedQ(nn.Module):
         gw, gb = gv[0::2], gv[1::2]
         gw[3].zero_()
         gb[3].zero_()
-        col = a[:, None, :].expand(-1, h2.shape[2], -1)
-        gw[3].scatter_add_(2, col, (h2 * gq[..., None]).transpose(1, 2))
-        gb[3][:, 0].scatter_add_(1, a, gq)
         relu_backward = torch.ops.aten.threshold_backward  # what autograd runs for relu: grad where h > 0
-        dz = relu_backward(w3a.contiguous() * gq[..., None], h2, 0.0)  # contiguous: 6x faster product
+        if a.dim() == 3:  # factored: every pad's output gets the sum's gradient
+            n, nb, m = a.shape
+            flat = a.reshape(n, nb * m)
+            g2 = (h2 * gq[..., None])[:, :, None, :].expand(n, nb, m, -1).reshape(n, nb * m, -1)
+            gw[3].scatter_add_(2, flat[:, None, :].expand(-1, h2.shape[2], -1), g2.transpose(1, 2))
+            gb[3][:, 0].scatter_add_(1, flat, gq[:, :, None].expand(n, nb, m).reshape(n, nb * m))
+            dz = relu_backward(w3a.sum(dim=2) * gq[..., None], h2, 0.0)
+        else:
+            col = a[:, None, :].expand(-1, h2.shape[2], -1)
+            gw[3].scatter_add_(2, col, (h2 * gq[..., None]).transpose(1, 2))
+            gb[3][:, 0].scatter_add_(1, a, gq)
+            dz = relu_backward(w3a.contiguous() * gq[..., None], h2, 0.0)  # contiguous: 6x faster product
         for k, h_in in ((2, h1), (1, h0), (0, x)):
             torch.bmm(h_in.transpose(1, 2), dz, out=gw[k])
             torch.sum(dz, dim=1, keepdim=True, out=gb[k])
@@ -213,28 +231,38 @@ def _dense(x, w, b, relu):
 
 
 @numba.njit(cache=True)
-def _q_row(ws, mask, i, x):
-    """Agent i's Q over its own actions for one input row; ws = (w0, w1, w2, w3, b0, b1, b2, b3)."""
+def _q_row(ws, i, x):
+    """Agent i's network outputs for one input row; ws = (w0, w1, w2, w3, b0, b1, b2, b3)."""
     h = _dense(x, ws[0][i], ws[4][i], True)
     h = _dense(h, ws[1][i], ws[5][i], True)
     h = _dense(h, ws[2][i], ws[6][i], True)
-    return _dense(h, ws[3][i], ws[7][i], False) + mask[i]
+    return _dense(h, ws[3][i], ws[7][i], False)
 
 
 @numba.njit(cache=True)
-def _argmax_q(ws, mask, i, s_r, jp_r, others, joint, x):
-    """Agent i's best action for one state: s_r (F,) task features, jp_r (N, 2) every agent's position
-    (a joint learner sees the others', in agent order); x is scratch for the input row."""
-    nf = s_r.size
+def _argmax_q(ws, cols, n_opts, i, s_r, jp_r, others, joint, x):
+    """Agent i's best action for one state: s_r (F,) task features, jp_r (N, D) every agent's
+    position (a joint learner sees the others', in agent order); x is scratch for the input row.
+    An action's Q is the sum of its pads' outputs (``cols``: one output column per pad), so the
+    best over all of the robot's pad tuples is exact; the first of equal ones."""
+    nf, d = s_r.size, jp_r.shape[1]
     x[:nf] = s_r
     if joint:
         for jj in range(others.shape[1]):
-            x[nf + 2 * jj:nf + 2 * jj + 2] = jp_r[others[i, jj]]
-    return np.argmax(_q_row(ws, mask, i, x))
+            x[nf + d * jj:nf + d * jj + d] = jp_r[others[i, jj]]
+    q = _q_row(ws, i, x)
+    best, arg = -np.inf, 0
+    for o in range(n_opts[i]):
+        v = q[cols[i, o, 0]]
+        for k in range(1, cols.shape[2]):
+            v += q[cols[i, o, k]]
+        if v > best:
+            best, arg = v, o
+    return arg
 
 
 @numba.njit(cache=True)
-def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_sweeps, joint):
+def _best_response(ws, cols, n_opts, s, pos, centre, others, fixed, fixed_actions, max_sweeps, joint):
     """Greedy joint actions of a batch of states; see ``Learner.greedy`` and :mod:`fixbench.solvers.nashq`.
 
     Start: every free agent's argmax with the others at their sets' centres (fixed agents where they
@@ -246,9 +274,10 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
     (actions (B, N), sweeps computed, converged).
     """
     nb, n = fixed.shape
-    x = np.empty(s.shape[1] + (2 * (n - 1) if joint else 0), dtype=np.float32)
+    d = pos.shape[2]
+    x = np.empty(s.shape[1] + (d * (n - 1) if joint else 0), dtype=np.float32)
     a = fixed_actions.copy()
-    jp = np.empty((nb, n, 2), dtype=np.float32)  # positions the agents see: start at the centres
+    jp = np.empty((nb, n, d), dtype=np.float32)  # positions the agents see: start at the centres
     free = np.zeros(n, dtype=np.bool_)
     for r in range(nb):
         for j in range(n):
@@ -258,7 +287,7 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
     for i in range(n):
         for r in range(nb):
             if not fixed[r, i]:
-                start[r, i] = _argmax_q(ws, mask, i, s[r], jp[r], others, joint, x)
+                start[r, i] = _argmax_q(ws, cols, n_opts, i, s[r], jp[r], others, joint, x)
     a = start
     if not joint:
         return a, 0, True
@@ -278,7 +307,7 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
             for r in range(nb):
                 if fixed[r, i]:
                     continue
-                new = _argmax_q(ws, mask, i, s[r], jp[r], others, joint, x)
+                new = _argmax_q(ws, cols, n_opts, i, s[r], jp[r], others, joint, x)
                 if new != a[r, i]:
                     a[r, i], jp[r, i] = new, pos[i, new]
                     changed = True
@@ -292,6 +321,23 @@ def _best_response(ws, mask, s, pos, centre, others, fixed, fixed_actions, max_s
                 return hist_a[k + (max_sweeps - k) % (sweep - k)].copy(), sweep, False
         hist_a[sweep], hist_d[sweep] = a, dirty
     return a, max_sweeps, False
+
+
+def _heads(problem: Problem) -> tuple[list[np.ndarray], int, int]:
+    """Output columns of every action's pads, per agent ((actions, m) each), the width of one head
+    and the number of heads m. One pad a robot: one column per action (the identity). Else head k
+    holds one output per candidate of the robot's set, and one more for "no pad" when it may idle."""
+    eff = problem.spec.effector
+    if eff.simple:
+        return [np.arange(len(s))[:, None] for s in problem.action_sets], max(map(len, problem.action_sets)), 1
+    width = max(len(s) for s in problem.candidate_sets) + (1 if eff.idle else 0)
+    cols = []
+    for s, acts in zip(problem.candidate_sets, problem.action_sets):
+        where = np.full(len(problem.candidates), -1, dtype=np.int64)
+        where[s] = np.arange(len(s))
+        opt = problem.options[acts]
+        cols.append(np.where(opt >= 0, where[np.maximum(opt, 0)], width - 1))
+    return cols, width, eff.per_agent
 
 
 # ---------------------------------------------------------------------------------------------
@@ -308,50 +354,56 @@ class Learner:
         self.device = device
         sizes = [len(s) for s in problem.action_sets]
         self.sizes = sizes
-        a_max = max(sizes)
+        # outputs: one head per pad over the robot's candidates (and "no pad" when it may idle); an
+        # action's Q is the sum of its pads' outputs (one pad a robot: one output per candidate)
+        cols, width, m = _heads(problem)
+        self.factored = not problem.spec.effector.simple
+        opt_max = max(sizes)
+        cols_pad = np.zeros((n, opt_max, m), dtype=np.int64)
+        for i, c in enumerate(cols):
+            cols_pad[i, :len(c)] = c + width * np.arange(m)  # head k's columns start at k * width
         # state features min-max normalised over the problem's tasks (constant features -> 0.5)
         f = problem.features.astype(np.float64)
         lo, span = f.min(axis=0), np.ptp(f, axis=0)
         feats = np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5)
         self.feats = torch.tensor(feats, dtype=torch.float32, device=device)  # (T, F)
-        # candidate positions normalised to the candidates' bounding box, padded per agent
+        # action positions (its pads' (x, y)) normalised to the candidates' bounding box, padded per agent
         c = problem.candidates
         cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
-        pos = np.full((n, a_max, 2), 0.5)
-        centre = np.zeros((n, 2))
+        d = problem.points.shape[1]
+        pos = np.full((n, opt_max, d), 0.5)
+        centre = np.zeros((n, d))
         for i, s in enumerate(problem.action_sets):
-            pos[i, :len(s)] = (c[s] - cmin) / cspan
+            pos[i, :len(s)] = (problem.points[s] - np.tile(cmin, d // 2)) / np.tile(cspan, d // 2)
             centre[i] = pos[i, :len(s)].mean(axis=0)
-        self.pos = torch.tensor(pos, dtype=torch.float32, device=device)  # (N, A, 2)
+        self.pos = torch.tensor(pos, dtype=torch.float32, device=device)  # (N, A, D)
         self.others = torch.tensor([[j for j in range(n) if j != i] for i in range(n)],
                                    dtype=torch.long, device=device).reshape(n, max(n - 1, 0))
-        mask = np.zeros((n, a_max), dtype=np.float32)  # -inf on the padding of smaller action sets
-        for i, size in enumerate(sizes):
-            mask[i, size:] = -np.inf
-        n_in = feats.shape[1] + (2 * (n - 1) if self.joint else 0)
-        self.q = StackedQ(n, n_in, cfg.hidden, a_max, generator).to(device)
-        self.target = StackedQ(n, n_in, cfg.hidden, a_max).to(device)  # zeros, then the policy's weights
+        n_in = feats.shape[1] + (d * (n - 1) if self.joint else 0)
+        self.q = StackedQ(n, n_in, cfg.hidden, m * width, generator).to(device)
+        self.target = StackedQ(n, n_in, cfg.hidden, m * width).to(device)  # zeros, then the policy's weights
         self.target.load_state_dict(self.q.state_dict())
         self.target.requires_grad_(False)
         self.agent_idx = torch.arange(n, device=device)
+        self.cols = torch.tensor(cols_pad, device=device)  # (N, A, m) output columns of each action's pads
         # host arrays for action choice
         self.feats_np, self.pos_np, self.centre_np = (feats.astype(np.float32), pos.astype(np.float32),
                                                       centre.astype(np.float32))
         self.others_np = self.others.cpu().numpy()
-        self.mask_np = mask
+        self.cols_np, self.n_opts = cols_pad, np.array(sizes, dtype=np.int64)
 
     # inputs -----------------------------------------------------------------------------------
     def inputs(self, states: torch.Tensor, joint_pos: torch.Tensor | None) -> torch.Tensor:
-        """Inputs of every agent: states (N, B, F), joint_pos (N, B, N, 2) -> (N, B, in)."""
+        """Inputs of every agent: states (N, B, F), joint_pos (N, B, N, D) -> (N, B, in)."""
         if not self.joint:
             return states
-        nb = joint_pos.shape[1]
-        idx = self.others[:, None, :, None].expand(self.n, nb, self.n - 1, 2)
-        oth = joint_pos.gather(2, idx).reshape(self.n, nb, 2 * (self.n - 1))
+        nb, d = joint_pos.shape[1], joint_pos.shape[3]
+        idx = self.others[:, None, :, None].expand(self.n, nb, self.n - 1, d)
+        oth = joint_pos.gather(2, idx).reshape(self.n, nb, d * (self.n - 1))
         return torch.cat([states, oth], dim=2)
 
     def joint_pos(self, actions: torch.Tensor) -> torch.Tensor:
-        """Positions of a batch of joint actions: (..., N) -> (..., N, 2)."""
+        """Positions of a batch of joint actions: (..., N) -> (..., N, D) (D = 2 per pad)."""
         return self.pos[self.agent_idx, actions]
 
     # action choice ----------------------------------------------------------------------------
@@ -380,9 +432,9 @@ class Learner:
             fixed = np.zeros((nb, self.n), dtype=bool)
             fixed_actions = np.zeros((nb, self.n), dtype=np.int64)
         w, b = self._host_weights()
-        a, sweeps, converged = _best_response(tuple(w + b), self.mask_np, self.feats_np[tasks], self.pos_np,
-                                              self.centre_np, self.others_np, fixed, fixed_actions.astype(np.int64),
-                                              self.max_sweeps, self.joint)
+        a, sweeps, converged = _best_response(tuple(w + b), self.cols_np, self.n_opts, self.feats_np[tasks],
+                                              self.pos_np, self.centre_np, self.others_np, fixed,
+                                              fixed_actions.astype(np.int64), self.max_sweeps, self.joint)
         return a, int(sweeps), bool(converged)
 
     # learning ---------------------------------------------------------------------------------
@@ -397,6 +449,8 @@ class Learner:
         states = self.feats[tasks]
         x = self.inputs(states, self.joint_pos(actions) if self.joint else None)
         own = actions.gather(2, self.agent_idx[:, None, None].expand(self.n, actions.shape[1], 1))[..., 0]
+        if self.factored:  # each action's pads' output columns (N, B, m)
+            own = self.cols[self.agent_idx[:, None], own]
         q, saved = self.q.chosen(x, own)
         target = (1 - alpha) * self.target.chosen(x, own)[0] + alpha * rewards
         diff = q - target

@@ -13,6 +13,12 @@ one pass over the training tasks. Defaults equal the seed's Table I: 100 episode
 batch 32, replay capacity 1e6, Huber loss, gradient values clipped at 100, soft target update
 tau = 0.005, MLP input -> 256 -> 256 -> 256 -> one Q per own action with ReLU, one network per agent.
 
+A robot that places m pads (a pair end effector, m pads, or one that may idle: ``Effector``) has a
+factored output instead of one Q per pad tuple: one head per pad over the robot's candidates (and
+"no pad"), an action's Q the sum of its pads' outputs, trained on that sum; best response takes the
+best sum over the robot's feasible tuples (exact, ``marl_engine._argmax_q``). Positions fed to a
+joint learner are then every pad's (x, y): 2 m numbers per other agent.
+
 ``nashq`` (joint-action learner). Agent i's Q-network sees the task features AND the normalised
 (x, y) positions (in the candidates' bounding box) of the candidates the other agents chose, in agent
 order: input = F + 2 (N - 1) numbers. With one shared reward the game is a team game; the joint

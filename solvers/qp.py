@@ -50,6 +50,10 @@ So each agent's set is screened to evenly spaced candidates in its set's order b
 read, as many as ``max_rows`` allows (wing_panel, 5 agents, 3 components: 40 a agent), or
 ``max_candidates_per_agent`` if smaller (no sample spent on the screening; the screened-out
 candidates are never chosen; ``info["candidates_per_agent"]`` says what was kept).
+
+Robots that place m pads (``Effector``): the weights of a robot's candidates sum to m (at most m
+when it may idle, in all at most the pad limit), each at most 1; rounding takes each robot's action
+whose pads hold the most force mass and polishes over the actions nearest to it.
 """
 
 from __future__ import annotations
@@ -126,7 +130,9 @@ class QPPlanner(Planner):
         pos = np.empty_like(order)
         pos[order] = np.arange(len(cand))  # candidate k of `cand` is column pos[k] of the data
         groups = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
-        qp = RelaxedQP(data, pos, groups, len(cand), cfg, 1 if mode == "per-task" else problem.n_tasks)
+        eff = problem.spec.effector
+        qp = RelaxedQP(data, pos, groups, len(cand), cfg, 1 if mode == "per-task" else problem.n_tasks,
+                       eff.per_agent, eff.idle or bool(eff.pads), eff.pads)
         info = {"compliance_samples": int(sum(d.per * len(cand) for d in data.values())),
                 "candidates_per_agent": [len(a) for a in sets],
                 "unconstrained_samples": per_call * len(tasks), "candidates_read": len(cand),
@@ -149,7 +155,7 @@ class QPPlanner(Planner):
         cfg = self.config
         limit = cfg.max_candidates_per_agent
         per = sum(fo.per for fo in problem.oracle.fields.values())  # held components: structure, not data
-        sizes = [len(a) if limit <= 0 else min(limit, len(a)) for a in problem.action_sets]
+        sizes = [len(a) if limit <= 0 else min(limit, len(a)) for a in problem.candidate_sets]
         if cfg.max_rows > 0 and per * sum(sizes) > cfg.max_rows:
             fit = max(1, cfg.max_rows // (per * problem.n_agents))
             limit = fit if limit <= 0 else min(limit, fit)
@@ -167,11 +173,11 @@ class FieldData:
 
 
 def screened_sets(problem: Problem, limit: int) -> list[np.ndarray]:
-    """Each agent's set, or ``limit`` evenly spaced members of it (deterministic, no sample)."""
+    """Each agent's candidates, or ``limit`` evenly spaced members of them (deterministic, no sample)."""
     if limit <= 0:
-        return [np.asarray(a, dtype=np.int64) for a in problem.action_sets]
+        return [np.asarray(a, dtype=np.int64) for a in problem.candidate_sets]
     return [np.asarray(a, dtype=np.int64)[np.unique(np.linspace(0, len(a) - 1, min(limit, len(a))).round()
-                                                    .astype(np.int64))] for a in problem.action_sets]
+                                                    .astype(np.int64))] for a in problem.candidate_sets]
 
 
 def read_compliance(name: str, problem: Problem, ev: TracedEvaluator,
@@ -198,10 +204,17 @@ class RelaxedQP:
     """The relaxation of the module docstring, compiled once (targets and gains are parameters)."""
 
     def __init__(self, data: dict[str, FieldData], pos: np.ndarray, groups: np.ndarray, n_cand: int,
-                 cfg: QPConfig, n_copies: int):
+                 cfg: QPConfig, n_copies: int, per_agent: int = 1, may_idle: bool = False, pads: int = 0):
         self.data, self.cfg, self.pos = data, cfg, pos
         self.w = cp.Variable(n_cand, nonneg=True)
-        cons = [sp.csr_matrix((np.ones(n_cand), (groups, np.arange(n_cand)))) @ self.w == 1]
+        group_sum = sp.csr_matrix((np.ones(n_cand), (groups, np.arange(n_cand)))) @ self.w
+        # m pads per robot: weights sum to m (at most m when a robot may place none), in all at most
+        # the pad limit
+        cons = [group_sum <= per_agent if may_idle else group_sum == per_agent]
+        if per_agent > 1:
+            cons.append(self.w <= 1)
+        if pads:
+            cons.append(cp.sum(self.w) <= pads)
         obj = 0
         self.Q, self.mu, self.par = {}, {}, {}
         for f, d in data.items():
@@ -277,6 +290,8 @@ def single_pad(d: FieldData, d0: np.ndarray) -> tuple[float, float]:
 def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: np.ndarray,
            mass: np.ndarray, cfg: QPConfig, task: int | None, budget: int) -> np.ndarray:
     """Round to the force centroids, then coordinate descent over the pools (module docstring)."""
+    if not problem.spec.effector.simple:
+        return _polish_options(problem, ev, cand, mass, cfg, task, budget)
     xy = problem.candidates
     offsets = np.cumsum([0] + [len(s) for s in sets])
     pools = []
@@ -285,6 +300,23 @@ def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: 
         centre = m @ xy[s] / m.sum() if m.sum() > 0 else xy[s].mean(axis=0)
         dist = np.sum((xy[s] - centre) ** 2, axis=1)
         pools.append(s[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
+    layout = np.array([p[0] for p in pools], dtype=np.int64)
+    return coordinate_descent(problem, ev, layout, pools, budget, task, {})
+
+
+def _polish_options(problem: Problem, ev: TracedEvaluator, cand: np.ndarray, mass: np.ndarray,
+                    cfg: QPConfig, task: int | None, budget: int) -> np.ndarray:
+    """Rounding when a robot places m pads (or none): each robot takes its action whose pads hold
+    the most force mass, its pool the ``pool`` actions nearest to it in the plane (``Problem.points``)."""
+    of = np.zeros(len(problem.candidates))
+    of[cand] = mass
+    pools = []
+    for acts in problem.action_sets:
+        opts = problem.options[acts]
+        score = np.where(opts >= 0, of[np.maximum(opts, 0)], 0.0).sum(axis=1)
+        best = acts[int(np.argmax(score))]
+        dist = np.sum((problem.points[acts] - problem.points[best]) ** 2, axis=1)
+        pools.append(acts[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
     layout = np.array([p[0] for p in pools], dtype=np.int64)
     return coordinate_descent(problem, ev, layout, pools, budget, task, {})
 

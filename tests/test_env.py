@@ -13,15 +13,17 @@ from fixbench.cases.errors import BudgetExhausted, CaseError
 TASKS = [0, 1, 2]
 
 
-@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan"])
+@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan", "wing_panel_pairs_small",
+                                  "wing_panel_pads_small"])
 def test_parallel_api(part):
     env = make_env(part, tasks=TASKS)  # the real part, three of its tasks (cheap oracle)
-    assert env.problem.spec.part == part and env.problem.n_tasks == 3
+    assert env.problem.name == part and env.problem.n_tasks == 3
     parallel_api_test(env, num_cycles=20)
     assert env.samples > 0
 
 
-@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan"])
+@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan", "wing_panel_pairs_small",
+                                  "wing_panel_pads_small"])
 def test_parallel_seed_and_performance(part):
     """PettingZoo's own seed test (same seed, same observations, rewards and infos) and its
     performance benchmark (on the AEC view of the env) on every part."""

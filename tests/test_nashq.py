@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from fixbench.cases.problem import Problem, load_problem
+from fixbench.cases.spec import Effector
 from fixbench.solvers.base import PlannerError
 from fixbench.solvers.marl_engine import Learner as _Learner
 from fixbench.solvers.marl_engine import StackedQ, Update, _q_row, load_weights
@@ -151,7 +152,9 @@ def test_figure4_panels(problem, tmp_path):
 def _q(L, i, x):
     """Agent i's Q for each row of x, by the planner's own compiled forward pass."""
     w, b = L._host_weights()
-    return np.stack([_q_row(tuple(w + b), L.mask_np, i, np.ascontiguousarray(row, dtype=np.float32)) for row in x])
+    q = np.stack([_q_row(tuple(w + b), i, np.ascontiguousarray(row, dtype=np.float32)) for row in x])
+    q[:, L.n_opts[i]:] = -np.inf  # outputs past the agent's own set are never chosen
+    return q
 
 
 def _plain_gauss_seidel(L, tasks, fixed, fixed_actions):
@@ -186,8 +189,9 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
     rng = np.random.default_rng(0)
     n, t = 5, 50
     sets = np.array_split(np.arange(2000), n)
-    prob = SimpleNamespace(n_agents=n, action_sets=sets, features=rng.random((t, 2)),
-                           candidates=rng.random((2000, 2)), n_tasks=t)
+    xy = rng.random((2000, 2))
+    prob = SimpleNamespace(n_agents=n, action_sets=sets, candidate_sets=sets, features=rng.random((t, 2)),
+                           candidates=xy, points=xy, n_tasks=t, spec=SimpleNamespace(effector=Effector()))
     cut = 0
     for max_sweeps in (3, 10):
         L = _Learner(prob, NashQConfig(hidden=256, max_sweeps=max_sweeps), True, torch.device("cpu"),

@@ -10,6 +10,9 @@ from hypothesis import strategies as st
 from fixbench.cases import BudgetExhausted, CaseError, load_problem
 
 PARTS = ["wing_panel", "wing_spar", "bus_panel", "fan"]
+#: random layouts checked against a direct solve per part: each direct solve re-assembles and
+#: factorises the part (bus panel, 307k DOFs: about 12 s; 200 of them were 40 minutes of CI)
+EXAMPLES = {"wing_panel": 60, "wing_spar": 40, "bus_panel": 12, "fan": 200}
 FIELDS = ("max_ux", "max_uy", "max_w", "max_u", "max_uxy")
 
 
@@ -26,7 +29,7 @@ def test_oracle_equals_direct_solve(case):
     problem = load_problem(case)
     worst = []
 
-    @settings(max_examples=200, deadline=None, derandomize=True, database=None,
+    @settings(max_examples=EXAMPLES[case], deadline=None, derandomize=True, database=None,
               suppress_health_check=list(HealthCheck))
     @given(_layouts(problem))
     def check(drawn):
@@ -40,7 +43,7 @@ def test_oracle_equals_direct_solve(case):
             assert rel <= 1e-9, (f, a, b, rel)
 
     check()
-    assert len(worst) >= len(FIELDS) * 200
+    assert len(worst) >= len(FIELDS) * EXAMPLES[case]
     print(f"{case}: worst relative difference {max(worst):.2e} over {len(worst) // len(FIELDS)} layouts")
 
 
