@@ -124,7 +124,8 @@ def _parse_point(text: str) -> tuple[float, float]:
 @cli.command()
 @click.argument("case")
 @click.option("--task", type=int, required=True, help="Task index.")
-@click.option("--layout", help="Candidate indices, one per agent: i1,...,ik.")
+@click.option("--layout", help="One action per agent: i1,...,ik (candidate indices, with one pad a robot; "
+                                "else indices into the case's pad tuples, as fixbench solve --json gives them).")
 @click.option("--free", is_flag=True,
               help="No fixtures: the part on its base supports alone (the free response), instead of --layout.")
 @click.option("--at", "at", multiple=True, metavar="X,Y",
@@ -149,6 +150,8 @@ def evaluate(case, task, layout, free, at, material, as_json, plot, vtk) -> None
         samples = ev.samples
     result = {"case": problem.name, "material": problem.spec.material.name, "task": task,
               "layout": "free (no fixtures)" if free else idx, **d.row(0), "samples": samples}
+    if not free and not problem.spec.effector.simple:
+        result["pads"] = problem.pads([idx])[0].tolist()
     if points:
         u = problem.displacement_at(task, None if free else [idx], np.array(points) * 1e-3)
         result["at"] = [{"x_mm": x, "y_mm": y, "ux_m": float(ux), "uy_m": float(uy), "w_m": float(w),

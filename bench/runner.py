@@ -12,6 +12,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -67,13 +68,27 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
     selected = _selection(cells, only)
     if not store.root.exists() and not any(selected(c) for c in cells):
         return {"cells": len(cells), "skipped": 0, "run": 0, "failed": 0, "deferred": len(cells)}
+    opts = _RunOptions(executor, workers, address, cell_timeout, retry_failed, progress, bool(only), plain_every)
     with store.lock():
-        return _run_locked(matrix_path, text, store, cells, selected, executor, workers, address, cell_timeout,
-                           retry_failed, progress, only, plain_every)
+        return _run_locked(text, store, cells, selected, opts)
 
 
-def _run_locked(matrix_path, text, store, cells, selected, executor, workers, address, cell_timeout,
-                retry_failed, progress, only, plain_every) -> dict:
+@dataclass(frozen=True)
+class _RunOptions:
+    """How :func:`run_matrix` runs the cells (its keyword arguments, once checked)."""
+
+    executor: str
+    workers: int | None
+    address: str | None
+    cell_timeout: float | None
+    retry_failed: bool
+    progress: bool
+    partial: bool  # ``only`` was given: the cells it leaves out are counted as deferred
+    plain_every: float
+
+
+def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOptions) -> dict:
+    """The run itself, with the run directory's lock held."""
     saved = store.root / "matrix.toml"
     if saved.exists() and saved.read_text(encoding="utf-8") != text:
         if saved.stat().st_size == 0 and not any((store.root / "rows").glob("*.json")):
@@ -82,12 +97,12 @@ def _run_locked(matrix_path, text, store, cells, selected, executor, workers, ad
             raise CaseError(str(store.root), "", "holds the results of a different matrix (its matrix.toml "
                             "differs); choose another --out")
     done = store.finished(move_damaged=True)
-    pending = [c for c in cells if c.id not in done or (retry_failed and done[c.id].get("error"))]
+    pending = [c for c in cells if c.id not in done or (opts.retry_failed and done[c.id].get("error"))]
     todo = [c for c in pending if selected(c)]
     summary = {"cells": len(cells), "skipped": len(cells) - len(pending), "run": 0, "failed": 0}
     if store.damaged:
         summary["damaged_moved"] = len(store.damaged)
-    if only:
+    if opts.partial:
         summary["deferred"] = len(pending) - len(todo)  # left for a later run (not selected by ``only``)
     if not todo:
         return summary
@@ -104,9 +119,9 @@ def _run_locked(matrix_path, text, store, cells, selected, executor, workers, ad
             references[key] = json.loads(path.read_text())
         else:
             ref_jobs.append(("reference", (*key4, modes)))
-    ex = make_executor(executor, workers, cell_timeout, address, env=worker_env(store.root))
-    bar = tqdm(total=len(ref_jobs) + len(todo), disable=not progress, unit="job", desc="references")
-    plain = _PlainProgress(len(todo), plain_every if not progress else 0.0)
+    ex = make_executor(opts.executor, opts.workers, opts.cell_timeout, opts.address, env=worker_env(store.root))
+    bar = tqdm(total=len(ref_jobs) + len(todo), disable=not opts.progress, unit="job", desc="references")
+    plain = _PlainProgress(len(todo), opts.plain_every if not opts.progress else 0.0)
 
     def on_reference(job, result, error):
         case, material, agents, tasks, _ = job[1]
