@@ -77,7 +77,7 @@ ROW_SCHEMA = {
     "samples": "samples the planner spent",
     "setup_s": "problem set-up before the planner ran: model, factorisation, compliance data (no samples)",
     "wall_s": "wall time of the planner's run (set-up excluded)", "cpu_s": "CPU time of the planner's run",
-    "layouts": "the planner's layout per task (JSON)",
+    "layouts": "the planner's layout per task (JSON; action indices: the candidates, with one pad a robot)",
     "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
 }
 
