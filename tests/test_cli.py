@@ -57,7 +57,8 @@ def test_validate_parts(capsys):
     rows = json.loads(run(capsys, "validate", "--json"), parse_constant=_refuse)  # strict JSON
     parts = {r["name"]: r for r in rows if r.get("check") == "w/t"}
     assert set(parts) == {"bus_panel", "bus_panel_small", "fan", "fan_small", "wing_panel",
-                          "wing_panel_small", "wing_spar", "wing_spar_small"}
+                          "wing_panel_small", "wing_panel_pairs", "wing_panel_pairs_small",
+                          "wing_panel_pads_small", "wing_spar", "wing_spar_small"}
     for r in parts.values():
         assert r["w_over_t"] is not None and r["w_over_t"] <= r["limit"] == 0.5 and not r["flagged"]
     assert parts["wing_spar"]["w_over_t"] == 0 < parts["wing_spar_small"]["w_over_t"]  # only the small one has weight
