@@ -343,18 +343,20 @@ def _key_of(rec: dict) -> tuple:
     return (rec["case"], rec["material"], int(rec["agents"]), int(rec["n_tasks"]))
 
 
-def check_small(cases: tuple[str, ...] = ("wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small"),
+def check_small(cases: tuple[str, ...] | None = None,
                 materials: tuple[str, ...] = ("aluminium", "steel", "titanium"), effort: Portfolio | None = None,
                 echo=print) -> list[dict]:
-    """The portfolio without its proof step against ``exact``'s proven optimum on small cases: per
-    case and material, on how many tasks it reached the optimum (to 1e-9) and its worst gap."""
+    """The portfolio without its proof step against ``exact``'s proven optimum on small cases (default:
+    every ``*_small`` catalog case, at its own robots): per case and material, on how many tasks it
+    reached the optimum (to 1e-9) and its worst gap."""
     from dataclasses import replace
 
+    from fixbench.cases.spec import case_names
     from fixbench.solvers.registry import get
 
     effort = replace(effort or Portfolio(), prove_limit=0)
     out = []
-    for case in cases:
+    for case in cases or [n for n in case_names() if n.endswith("_small")]:
         for material in materials:
             p = load_problem(case, material=material)
             t = time.perf_counter()
