@@ -36,7 +36,7 @@ MATERIALS = ("aluminium", "steel", "titanium")
 
 
 def _write(path: Path, text: str) -> Path:
-    from fixbench.bench.store import write_text_atomic
+    from fixbench.cases.files import write_text_atomic
 
     write_text_atomic(path, text)
     return path

@@ -20,9 +20,10 @@ from tqdm import tqdm
 
 from fixbench.bench.cells import base_row, reference_key
 from fixbench.bench.matrix import find_matrix, load_matrix
-from fixbench.bench.store import Store, write_text_atomic
+from fixbench.bench.store import Store
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
+from fixbench.cases.files import write_text_atomic
 
 
 def make_executor(kind: str, workers: int | None, timeout: float | None, address: str | None,

@@ -31,13 +31,13 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import pandas as pd
 
 from fixbench.cases.errors import CaseError
+from fixbench.cases.files import write_atomic, write_text_atomic
 from fixbench.solvers.base import TRACE_COLUMNS
 
 #: the version every row is written with (``schema``) and every row read is checked against
@@ -91,37 +91,12 @@ CHECKSUM = "row_sha1"
 FILE_CHECKSUMS = {"traces": "trace_sha1", "curves": "curves_sha1"}
 
 
-def _atomic(path: Path, suffix: str, write) -> None:
-    """``write(tmp_path)`` then rename onto ``path``; the temporary file never outlives a failure."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def _write_synced(tmp: str, text: str) -> None:
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-
-
 def write_json_atomic(path: Path, data) -> None:
-    _atomic(path, ".json.tmp", lambda tmp: _write_synced(tmp, json.dumps(data, default=str, indent=1)))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    _atomic(path, ".tmp", lambda tmp: _write_synced(tmp, text))
+    write_text_atomic(path, json.dumps(data, default=str, indent=1), ".json.tmp")
 
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
-    _atomic(path, ".parquet.tmp", lambda tmp: df.to_parquet(tmp, index=False))
+    write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False), ".parquet.tmp")
 
 
 def row_checksum(row: dict) -> str:
@@ -228,21 +203,21 @@ class Store:
         """Hold ``DIR/.lock`` for one writer; a second one is refused with one line (a lock of a
         process that died is released by the OS, so the next run takes it over)."""
         self.root.mkdir(parents=True, exist_ok=True)
-        f = open(self.root / ".lock", "a+", encoding="utf-8")
+        f = open(self.root / ".lock", "a+b", buffering=0)  # unbuffered: nothing left to flush at close
         try:
             try:
                 fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 f.seek(0)
-                holder = f.read().strip() or "another process"
+                holder = f.read().decode(errors="replace").strip() or "another process"
                 raise CaseError(str(self.root), "", f"another fixbench run is writing here ({holder}); "
                                 "wait for it to finish or choose another --out") from None
-            f.seek(0)
-            f.truncate()
-            f.write(f"pid {os.getpid()}")
-            f.flush()
+            with contextlib.suppress(OSError):  # the holder's name is a courtesy: a full disk skips it
+                f.truncate(0)
+                f.write(f"pid {os.getpid()}".encode())
             yield
-            f.truncate(0)  # released: no stale holder named
+            with contextlib.suppress(OSError):
+                f.truncate(0)  # released: no stale holder named
         finally:
             f.close()
 

@@ -177,7 +177,7 @@ def refresh_readme(readme: str | Path, report_dir: str | Path) -> int:
 
     new = TABLE_BLOCK.sub(swap, text)
     if new != text:
-        from fixbench.bench.store import write_text_atomic
+        from fixbench.cases.files import write_text_atomic
 
         write_text_atomic(readme, new)
     return n

@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from fixbench.cases.errors import CaseError
+from fixbench.cases.files import write_text_atomic
 from fixbench.cases.spec import read_toml, resolve_case
 
 FORMAT = 1
@@ -94,16 +93,7 @@ def write_reference(ref: dict, folder: Path | None = None) -> Path:
     ref["content_hash"] = content_hash(ref["tasks"])
     check_reference(ref, "reference")
     path = reference_path(ref["case"], ref["material"], ref["agents"], folder)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(_dumps(ref))
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; a shipped data file is readable by all
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, _dumps(ref), ".json.tmp")
     return path
 
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -228,6 +230,89 @@ def test_an_out_under_a_file_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["run", str(m), "--out", str(tmp_path / "plain" / "run"), "--workers", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Not a directory" in err and "Traceback" not in err
+
+
+@pytest.fixture
+def small_fs(tmp_path, monkeypatch):
+    """A real 8 MiB file system (tmpfs) at tmp_path/fs, where the platform lets the tests mount one
+    (root, mount allowed); unmounted after. The oracle's disk cache is off, so that its own
+    warning does not mix with the faults under test."""
+    mnt = tmp_path / "fs"
+    mnt.mkdir()
+    if os.geteuid() != 0 or not shutil.which("mount") or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("mounting a small file system needs root and a platform that allows it")
+    monkeypatch.setenv("FIXBENCH_CACHE_DIR", "off")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def _finished(m: Path, out: Path) -> dict[str, bytes]:
+    """Run ``m`` into ``out`` to the end; the row files' bytes by cell id."""
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 0
+    return {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")}
+
+
+def _measured_row(data: bytes) -> dict:
+    """A row without its timings (and the checksum over them): what a recomputed cell repeats."""
+    return {k: v for k, v in json.loads(data).items() if k not in ("wall_s", "cpu_s", "setup_s", CHECKSUM)}
+
+
+def _measured(out: Path) -> dict[str, dict]:
+    return {p.stem: _measured_row(p.read_bytes()) for p in (out / "rows").glob("*.json")}
+
+
+def test_a_full_file_system_is_one_line_keeps_the_rows_and_resumes(small_fs, capsys):
+    m = small_fs.parent / "m.toml"
+    m.write_text(TINY)
+    out = small_fs / "run"
+    full = _finished(m, out)
+    lost = sorted(full)[:2]
+    for cell in lost:
+        for f in out.glob(f"*/{cell}.*"):
+            f.unlink()
+    filler = small_fs / "filler"
+    with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):  # to the last byte
+        while f.write(b"x" * 512):
+            pass
+    capsys.readouterr()
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err and str(out) in err, err
+    kept = {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")}
+    assert kept == {c: b for c, b in full.items() if c not in lost}  # finished rows intact
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    filler.unlink()  # the cause gone, the directory resumes
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 0
+    assert _measured(out) == {c: _measured_row(b) for c, b in full.items()}
+
+
+def test_a_read_only_file_system_is_one_line_keeps_the_rows_and_resumes(small_fs, capsys):
+    m = small_fs.parent / "m.toml"
+    m.write_text(TINY)
+    out = small_fs / "run"
+    full = _finished(m, out)
+    lost = sorted(full)[0]
+    for f in out.glob(f"*/{lost}.*"):
+        f.unlink()
+    subprocess.run(["mount", "-o", "remount,ro", str(small_fs)], check=True)
+    capsys.readouterr()
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Read-only file system" in err and str(out) in err, err
+    assert {p.stem: p.read_bytes() for p in (out / "rows").glob("*.json")} == {
+        c: b for c, b in full.items() if c != lost}
+    subprocess.run(["mount", "-o", "remount,rw", str(small_fs)], check=True)
+    assert main(["run", str(m), "--out", str(out), "--workers", "1"]) == 0
+    assert _measured(out) == {c: _measured_row(b) for c, b in full.items()}
+
+
+def test_run_files_are_readable_as_the_umask_allows(done_run):
+    _, out, _ = done_run
+    mask = os.umask(0)
+    os.umask(mask)
+    for p in [out / "matrix.toml", *out.glob("rows/*.json"), *out.glob("traces/*.parquet")]:
+        assert p.stat().st_mode & 0o777 == 0o666 & ~mask, p
 
 
 def test_without_a_terminal_progress_is_plain_lines(tmp_path, capsys):
