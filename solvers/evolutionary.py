@@ -1,6 +1,6 @@
 """Evolutionary planners on pymoo: a genetic algorithm (``ga``) and particle swarm (``pso``).
 
-Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem` (:class:`_LayoutProblem`) whose
+Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem` (:class:`PopulationProblem`) whose
 ``_evaluate`` decodes a whole population into layouts and makes one counted oracle call for it, so
 every generation is one batched call: ``ev.evaluate(task, layouts)`` in per-task mode (one sample a
 layout), ``ev.evaluate_shared(layouts)`` in shared mode (objective: the worst task; ``n_tasks``
@@ -84,8 +84,10 @@ from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import warm_layouts
 
 
-class _LayoutProblem(PymooProblem):
-    """A population -> layouts -> one counted call per generation, capped at ``allowance`` layouts."""
+class PopulationProblem(PymooProblem):
+    """A population -> layouts -> one counted call per generation, capped at ``allowance`` layouts
+    (the pymoo problem behind ``ga`` and ``pso``; :class:`fixbench.solvers.pymoo_problem.LayoutProblem`
+    builds one for a task of a fixbench problem)."""
 
     def __init__(self, xl: np.ndarray, xu: np.ndarray, vtype: type,
                  decode: Callable[[np.ndarray], np.ndarray],
@@ -111,13 +113,14 @@ class _EvolutionaryPlanner(Planner):
         (encoded layouts) go into the first population, the rest is sampled as usual."""
 
     @abstractmethod
-    def _encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable, Callable]:
-        """(xl, xu, vtype, decode, encode): bounds, variable type, population -> layouts and back."""
+    def encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable, Callable]:
+        """(xl, xu, vtype, decode, encode): bounds, variable type, population -> layouts and back
+        (public: the pymoo adapter uses ga's)."""
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         p = cfg.soft_power or None
-        xl, xu, vtype, decode, encode = self._encoding(problem)
+        xl, xu, vtype, decode, encode = self.encoding(problem)
         if mode == "shared":
             require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
             runs = [(None, lambda layouts: ev.shared_fitness(layouts, p),
@@ -135,7 +138,7 @@ class _EvolutionaryPlanner(Planner):
             while left > 0:
                 size = max(2, min(cfg.pop_size, left // cfg.min_generations))
                 seeds = encode(warm[:size]) if starts == 0 and len(warm) else None
-                problem_ = _LayoutProblem(xl, xu, vtype, decode, score, left)
+                problem_ = PopulationProblem(xl, xu, vtype, decode, score, left)
                 stall = RobustTermination(SingleObjectiveSpaceTermination(0.0, only_feas=False),
                                           period=cfg.stall_generations or 1)
                 budget_end = MaximumFunctionCallTermination(left)
@@ -219,7 +222,7 @@ class GeneticPlanner(_EvolutionaryPlanner):
                   mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
                   eliminate_duplicates=True)
 
-    def _encoding(self, problem: Problem):
+    def encoding(self, problem: Problem):
         sets = problem.action_sets
         xu = np.array([len(s) - 1 for s in sets], dtype=float)
 
@@ -265,7 +268,7 @@ class SwarmPlanner(_EvolutionaryPlanner):
         return PSO(pop_size=size, sampling=_Seeded(LHS(), seeds), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
                    adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)
 
-    def _encoding(self, problem: Problem):
+    def encoding(self, problem: Problem):
         sets = problem.action_sets
         points = [problem.points[s] for s in sets]  # an action's pads' (x, y), 2 m numbers
         d = problem.points.shape[1]

@@ -32,12 +32,12 @@ import numpy as np
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import MODES, PlannerError, TracedEvaluator, require_budget
-from fixbench.solvers.evolutionary import GeneticPlanner, _LayoutProblem
+from fixbench.solvers.evolutionary import GeneticPlanner, PopulationProblem
 
 UNLIMITED = 2**62  # layouts an unlimited evaluator allows (an int: the allowance is sliced with it)
 
 
-class LayoutProblem(_LayoutProblem):
+class LayoutProblem(PopulationProblem):
     """pymoo ``Problem`` of one task (or of the shared layout) of a fixbench problem (see the module
     docstring). ``evaluator``: a :class:`TracedEvaluator` to charge (default: a new one with
     ``budget``), e.g. a planner's own ``ev`` inside :meth:`~fixbench.solvers.base.Planner.plan`."""
@@ -47,7 +47,7 @@ class LayoutProblem(_LayoutProblem):
         if mode not in MODES:
             raise PlannerError(f"LayoutProblem: mode must be one of {', '.join(MODES)}, got '{mode}'")
         ev = evaluator if evaluator is not None else TracedEvaluator(problem, budget)
-        xl, xu, vtype, decode, encode = GeneticPlanner()._encoding(problem)  # ga's integer genes
+        xl, xu, vtype, decode, encode = GeneticPlanner().encoding(problem)  # ga's integer genes
         if mode == "shared":
             score = lambda layouts: ev.shared_fitness(layouts, soft_power)  # noqa: E731
             allowance = UNLIMITED if ev.budget is None else int(ev.remaining // problem.n_tasks)
