@@ -16,8 +16,10 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
         OUT/<algorithm>/data_f<id>_<name>/IOHprofiler_f<id>_DIM<agents>.dat
 
     A *problem* (function) is what a cell ran on: case x material x agents x mode x task set
-    (``n_tasks``; held-out cells also ``heldout_every``), numbered 1, 2, ... in sorted order;
-    its name reads ``<case>-<material>-a<agents>-t<n_tasks>-<mode>``. DIM is the number of agents,
+    (``n_tasks``; held-out cells also ``heldout_every``); its name reads
+    ``<case>-<material>-a<agents>-t<n_tasks>-<mode>`` and its id is a number made from the name
+    (:func:`function_id`), so that one problem keeps its id in every export, whichever other
+    problems a run holds. DIM is the number of agents,
     one run per cell (seed), instance 1 for every run (seeds change the planner, not the problem),
     minimisation (``maximization = "F"``). The ``.info`` file is IOHexperimenter's three lines per
     dimension: the header (``suite = "fixbench", funcId, funcName, DIM, maximization, algId,
@@ -86,6 +88,7 @@ earlier export (it holds the marker file ``.fixbench-export``); anything else is
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -248,7 +251,10 @@ def write_iohprofiler(rows: pd.DataFrame, traces: pd.DataFrame, out: Path) -> di
     ok = ok[~zero]
     by_cell = {c: g for c, g in traces.groupby("cell", sort=False)} if not traces.empty else {}
     empty = pd.DataFrame(columns=list(TRACE_COLUMNS))
-    fids = {key: i + 1 for i, key in enumerate(sorted(set(ok["problem"]), key=str))}
+    fids = {key: function_id(_problem_name(key)) for key in set(ok["problem"])}
+    if len(set(fids.values())) < len(fids):  # 1 in ~10^7 for two problems: say so rather than merge them
+        raise FixbenchError("two problems of this run share an IOHprofiler function id: "
+                            + ", ".join(sorted(_problem_name(k) for k in fids)))
     folders: dict[str, str] = {}
     runs = 0
     for alg in sorted(set(ok["algorithm"])):
@@ -294,6 +300,12 @@ def write_iohprofiler(rows: pd.DataFrame, traces: pd.DataFrame, out: Path) -> di
             runs += len(entries)
     return {"problems": len(fids), "algorithms": len(folders), "runs": runs,
             "skipped": {k: v for k, v in skipped.items() if v}}
+
+
+def function_id(name: str) -> int:
+    """The IOHprofiler function id of a problem: the first 7 hex digits of the SHA-1 of its name,
+    plus one (1 .. 2^28): stable across runs and exports."""
+    return int(hashlib.sha1(name.encode()).hexdigest()[:7], 16) + 1
 
 
 def _split_pairs(line: str) -> dict:

@@ -39,18 +39,20 @@ nearest candidate), and gives each assigned agent its candidate nearest to its p
 agents than stored positions, the agents left over take, one by one, the candidate of their set
 farthest from every pad placed so far (spread); with fewer, the worst-matched positions are dropped.
 
-**Polish** (counted, ``polish_samples`` per task, fewer if the budget is smaller): evaluate the k
-distinct adaptations, then coordinate descent from the best over each agent's ``pool`` candidates
-nearest to its pad (:func:`fixbench.solvers.qp.coordinate_descent`). ``polish_samples=0`` spends no sample
-at all: the nearest case's adaptation is returned unevaluated. Shared mode pools the neighbours of
-every task, ordered by distance, and judges layouts on every task (n_tasks samples each).
+**Revise** (counted): the k distinct adaptations are evaluated and a local search in the plane
+(:func:`fixbench.solvers.local.local_search`, the ``local`` planner's defaults) goes on from the best
+of them with what is left of the task's share of the budget: a retrieved plan is a start, and a
+case-based planner that stopped there would leave most of its samples unspent. ``polish_samples``
+caps the samples a task may spend (-1: its whole share; with an unlimited budget,
+``samples_per_task``); ``polish_samples=0`` spends no sample at all: the nearest case's
+adaptation is returned unevaluated. A task's layout is the one with the lowest max deformation
+evaluated on it. Shared mode pools the neighbours of every task, ordered by distance, and judges
+layouts on every task (n_tasks samples each).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,9 +60,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from fixbench.cases.files import write_text_atomic
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
-from fixbench.solvers.qp import coordinate_descent
+from fixbench.solvers.local import LocalConfig, local_search
 from fixbench.solvers.registry import available, get, register
 
 TASK_DIMS = 4
@@ -95,11 +98,12 @@ class CBRConfig(PlannerConfig):
     map_normalised: bool = True
     """Map positions in box-normalised coordinates (else metres from the box corner)."""
 
-    polish_samples: int = 20
-    """Counted evaluations per task for polishing (0: return the adaptation unevaluated)."""
+    polish_samples: int = -1
+    """Counted evaluations a task may spend revising its adaptations: -1, its whole share of the
+    budget; 0, none (the adaptation is returned unevaluated); n, at most n."""
 
-    pool: int = 5
-    """Candidates per agent, nearest to its pad, that coordinate descent may swap in."""
+    samples_per_task: int = 200
+    """Samples a task revises with when the budget is unlimited and ``polish_samples`` is -1."""
 
     exclude: str = "part"
     """Which library entries a query may not use: "part" (leave one part out: transfer between
@@ -200,12 +204,7 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
                "sources": sources, "entries": entries}
     if path is None:
         return library
-    path = Path(path).expanduser()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".json.tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(library, f, indent=1)
-    os.replace(tmp, path)  # atomic: concurrent builders never leave half a file
+    write_text_atomic(Path(path).expanduser(), json.dumps(library, indent=1), ".json.tmp")
     return library
 
 
@@ -262,7 +261,7 @@ def adapt(problem: Problem, entry: dict, normalised: bool) -> np.ndarray:
 @register
 class CaseBasedReasoning(Planner):
     name = "cbr"
-    description = "case-based reasoning: nearest solved cases from a library, adapted and polished"
+    description = "case-based reasoning: nearest solved cases from a library, adapted, revised by local search"
     Config = CBRConfig
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
@@ -297,9 +296,10 @@ class CaseBasedReasoning(Planner):
         if mode == "shared":
             order = np.argsort(dist, axis=None, kind="stable")
             options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx.ravel()[order]])
-            budget = int(min(cfg.polish_samples, ev.remaining // problem.n_tasks))
-            layout = self._polish(problem, ev, options, budget, None, cfg)
-            return np.tile(layout, (problem.n_tasks, 1)), info
+            budget = self._share(ev.remaining // problem.n_tasks, cfg)
+            layout = self._revise(problem, lambda L: ev.shared_fitness(L, self._soft), options, budget, rng)
+            best = ev.shared_layout if ev.shared_layout is not None else layout
+            return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
         left = len(ev.tasks)  # tasks still to polish; held-out tasks get the adaptation, no sample
         for t in range(problem.n_tasks):
@@ -307,9 +307,10 @@ class CaseBasedReasoning(Planner):
             if t not in ev.tasks:
                 layouts[t] = options[0]
                 continue
-            budget = int(min(cfg.polish_samples, ev.remaining // left))
+            budget = self._share(ev.remaining // left, cfg)
             left -= 1
-            layouts[t] = self._polish(problem, ev, options, budget, t, cfg)
+            self._revise(problem, lambda L, t=t: ev.fitness(t, L, self._soft), options, budget, rng)
+            layouts[t] = ev.best_layout[t] if np.isfinite(ev.best[t]) else options[0]
         return layouts, info
 
     @staticmethod
@@ -330,19 +331,23 @@ class CaseBasedReasoning(Planner):
                                          per_task_budget=cfg.bootstrap_budget)
         return _MEMORY[key], "built in memory from " + ", ".join(cfg.bootstrap)
 
+    _soft = LocalConfig.soft_power  # the revising search minimises local's soft max
+
     @staticmethod
-    def _polish(problem: Problem, ev: TracedEvaluator, options: list[np.ndarray], budget: int,
-                task: int | None, cfg: CBRConfig) -> np.ndarray:
+    def _share(share: float, cfg: CBRConfig) -> int:
+        """Samples one task (one shared layout search) may spend revising."""
+        if cfg.polish_samples >= 0:
+            return int(min(cfg.polish_samples, share))
+        return int(share) if np.isfinite(share) else cfg.samples_per_task
+
+    @staticmethod
+    def _revise(problem: Problem, fitness, options: list[np.ndarray], budget: int,
+                rng: np.random.Generator) -> None:
+        """Evaluate the adaptations (as many as fit) and search on from the best of them."""
         if budget < 1:
-            return options[0]
-        first = np.array(options[:budget])
-        vals = ev.evaluate_shared(first) if task is None else ev.evaluate(task, first).max_u
-        known = dict(zip(map(tuple, first.tolist()), vals.tolist()))
-        start = first[int(np.argmin(vals))]
-        xy = problem.points
-        pools = [s[np.argsort(np.linalg.norm(xy[s] - xy[start[a]], axis=1), kind="stable")[:max(cfg.pool, 1)]]
-                 for a, s in enumerate(problem.action_sets)]
-        return coordinate_descent(problem, ev, start, pools, budget - len(first), task, known)
+            return
+        starts = np.array(options[:budget])
+        local_search(problem, fitness, budget, starts, rng, LocalConfig())
 
 
 def _unique(layouts: list[np.ndarray]) -> list[np.ndarray]:

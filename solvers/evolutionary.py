@@ -270,8 +270,9 @@ class SwarmPlanner(_EvolutionaryPlanner):
 
     def encoding(self, problem: Problem):
         sets = problem.action_sets
-        points = [problem.points[s] for s in sets]  # an action's pads' (x, y), 2 m numbers
-        d = problem.points.shape[1]
+        where = _centre_and_spread(problem.points)
+        points = [where[s] for s in sets]  # an action as 2 m numbers (one pad: its (x, y))
+        d = where.shape[1]
         trees = [cKDTree(p) for p in points]
         pad = 0.5 * float(np.median(cKDTree(problem.candidates).query(problem.candidates, k=2)[0][:, 1]))
         xl = np.concatenate([p.min(axis=0) - pad for p in points])
@@ -282,6 +283,20 @@ class SwarmPlanner(_EvolutionaryPlanner):
                                     for a, (s, t) in enumerate(zip(sets, trees))])
 
         def encode(layouts: np.ndarray) -> np.ndarray:
-            return problem.points[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
+            return where[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
 
         return xl, xu, float, decode, encode
+
+
+def _centre_and_spread(points: np.ndarray) -> np.ndarray:
+    """Actions as PSO coordinates: one pad, its (x, y); m pads, their centre and each other pad's
+    offset from the first, ``(cx, cy, x2 - x1, y2 - y1, ...)``. In the pads' own coordinates most of
+    the box around a robot's pairs is no pair at all (two pads at most ``span`` apart fill a thin
+    shell of the 4-D box), and a particle there snaps to whichever pair is nearest: the swarm's
+    first population and its moves crowd onto a few pairs. Centre and offset fill their box
+    (offsets within a disc of radius ``span``), so a point snaps near where it is."""
+    m = points.shape[1] // 2
+    if m == 1:
+        return points
+    xy = points.reshape(len(points), m, 2)
+    return np.concatenate([xy.mean(axis=1), (xy[:, 1:] - xy[:, :1]).reshape(len(points), -1)], axis=1)

@@ -83,3 +83,17 @@ def test_degrades_with_distance_from_the_library(library):
     assert dist["within"] == pytest.approx(0.0, abs=1e-12) and ratio["within"] == pytest.approx(1.0)
     assert dist["within"] < dist["close"] < dist["far"]
     assert ratio["far"] > ratio["within"]
+
+
+def test_revise_spends_the_budget_and_never_ends_worse_than_the_adaptation(library):
+    """On a query the library does not hold (titanium, tasks between the stored ones) cbr spends its
+    whole budget revising and ends, task by task, no worse than the adaptation it started from."""
+    _, path, _ = library
+    query = Problem(load_case_spec("wing_panel_small", "titanium").with_tasks([1, 2]))
+    start = CaseBasedReasoning(library=str(path), polish_samples=0, exclude="none").solve(query, None, seed=0)
+    revised = CaseBasedReasoning(library=str(path), exclude="none").solve(query, 40 * query.n_tasks, seed=0)
+    assert revised.samples == 40 * query.n_tasks
+    assert (revised.max_deformation <= start.max_deformation).all()
+    assert revised.max_deformation.mean() < start.max_deformation.mean()
+    capped = CaseBasedReasoning(library=str(path), polish_samples=5, exclude="none").solve(query, 400, seed=0)
+    assert capped.samples <= 5 * query.n_tasks

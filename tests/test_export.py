@@ -17,6 +17,7 @@ from fixbench.bench.export import (
     MARKER,
     cell_curve,
     export_run,
+    function_id,
     load_run,
     marl_eval_data,
     read_iohprofiler,
@@ -79,6 +80,7 @@ def test_iohprofiler_round_trip(run, tmp_path):
     assert len(runs) == len(ok)
     assert set(runs["maximization"]) == {"F"} and set(runs["suite"]) == {"fixbench"}
     assert set(runs["DIM"]) == {2} and runs["funcId"].nunique() == 3
+    assert all(f == function_id(n) for f, n in zip(runs["funcId"], runs["funcName"]))  # stable ids
     assert set(runs["reference_proven"]) == {"T"}, "fan_small's references are exact's proven optima"
     assert all("reference_objective_m=" in c for c in runs["comment"])
     traces = load_traces(run)

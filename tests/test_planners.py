@@ -30,7 +30,8 @@ def problem():
 def _quick(name):
     """The planner with settings that keep the test quick (documented config fields only)."""
     cls = get(name)
-    quick = {"nashq": {"episodes": 3}, "iql": {"episodes": 3}}.get(name, {})
+    quick = {"nashq": {"episodes": 3}, "iql": {"episodes": 3},
+             "cbr": {"bootstrap": ("wing_panel_small",), "bootstrap_budget": 5}}.get(name, {})
     return cls(**quick)
 
 
@@ -56,6 +57,31 @@ def test_budget_too_small(problem, name):
         assert "\n" not in str(exc) and str(exc)
     else:  # a documented best effort within the budget
         assert result.samples <= 1
+
+
+#: planners scored by their learned policy's action (the seed's protocol), not by the best layout
+#: their exploration happened to evaluate: the one exception to "never worse than the best seen"
+POLICY_PLANNERS = {"nashq", "iql"}
+
+
+@pytest.mark.parametrize("per_task", [3, 10])
+@pytest.mark.parametrize("name", sorted(set(available()) - POLICY_PLANNERS))
+def test_tiny_budgets_are_spent_and_the_best_layout_seen_is_returned(name, per_task):
+    """A few samples a task against 28 candidates an agent: a planner either refuses in one line
+    (exact, qp) or spends the whole budget and returns, on every task, a layout no worse than the
+    best it evaluated there."""
+    small = Problem(load_case_spec("fan_small", n_agents=3).with_tasks([0, 5]))
+    budget = per_task * small.n_tasks
+    try:
+        result = _quick(name).solve(small, budget, seed=0)
+    except FixbenchError as exc:
+        assert "\n" not in str(exc) and "budget" in str(exc)
+        return
+    assert result.samples == budget
+    trace = np.asarray(result.trace)
+    for t in range(small.n_tasks):
+        seen = trace[trace[:, 0] == t, 3]
+        assert len(seen) and result.max_deformation[t] <= seen.min() * (1 + 1e-12), (t, result.max_deformation[t])
 
 
 @pytest.mark.parametrize("name", sorted(n for n, c in available().items() if "shared" in c.modes))
@@ -84,13 +110,22 @@ def test_registry_refuses_a_builtin_name_before_the_builtin_is_imported():
     assert out.strip().endswith("False")
 
 
-def test_checking_a_matrix_of_builtin_names_imports_no_planner():
-    """The benchmark driver stays small: it checks names without importing PyTorch, cvxpy, pymoo."""
+def test_checking_a_matrix_of_builtin_names_imports_no_planner(tmp_path):
+    """The benchmark driver stays small: it checks names without importing PyTorch, cvxpy, pymoo;
+    an entry with config overrides imports its own planner only (to check the overrides)."""
+    names = ["random", "exact", "greedy", "ga", "pso", "local", "qp", "optuna", "cbr", "nashq", "iql"]
+    bare = tmp_path / "bare.toml"
+    bare.write_text('name = "bare"\ncases = ["fan_small"]\nmaterials = ["aluminium"]\nseeds = [0]\nbudget = 60\n'
+                    + "".join(f'[[planners]]\nname = "{n}"\n' for n in names))
+    tuned = tmp_path / "tuned.toml"
+    tuned.write_text(bare.read_text() + '[[planners]]\nname = "nashq"\nlabel = "n"\nconfig = { episodes = 2 }\n')
     code = ("import sys\nfrom fixbench.bench.matrix import load_matrix\n"
-            "m = load_matrix('bench/matrices/default.toml')\n"
+            "m = load_matrix(sys.argv[1])\n"
             "print(len(m.planners), sorted(k for k in ('torch', 'cvxpy', 'pymoo', 'optuna') if k in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.split() == ["11", "[]"]  # the default matrix's 11 planner entries, checked by name only
+    out = [subprocess.run([sys.executable, "-c", code, str(m)], capture_output=True, text=True, check=True).stdout
+           for m in (bare, tuned)]
+    assert out[0].split() == ["11", "[]"]  # 11 planner entries, checked by name only
+    assert out[1].split() == ["12", "['torch']"]
 
 
 def test_every_planner_is_documented():
