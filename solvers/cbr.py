@@ -297,8 +297,8 @@ class CaseBasedReasoning(Planner):
             order = np.argsort(dist, axis=None, kind="stable")
             options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx.ravel()[order]])
             budget = self._share(ev.remaining // problem.n_tasks, cfg)
-            layout = self._revise(problem, lambda L: ev.shared_fitness(L, self._soft), options, budget, rng)
-            best = ev.shared_layout if ev.shared_layout is not None else layout
+            self._revise(problem, lambda L: ev.shared_fitness(L, self._soft), options, budget, rng)
+            best = ev.shared_layout if ev.shared_layout is not None else options[0]
             return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
         left = len(ev.tasks)  # tasks still to polish; held-out tasks get the adaptation, no sample

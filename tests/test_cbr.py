@@ -55,6 +55,9 @@ def test_polish_is_counted_and_within_budget(library):
     s = CaseBasedReasoning(library=str(path), polish_samples=2, exclude="none").solve(
         source, None, seed=0, mode="shared")
     assert (s.layouts == s.layouts[0]).all() and s.samples <= 2 * source.n_tasks
+    z = CaseBasedReasoning(library=str(path), polish_samples=0, exclude="none").solve(
+        source, None, seed=0, mode="shared")  # no sample: the nearest adaptation, on every task
+    assert z.samples == 0 and (z.layouts == z.layouts[0]).all() and (z.layouts >= 0).all()
 
 
 def test_missing_library_is_a_clear_error(tmp_path):
