@@ -407,7 +407,4 @@ def load_problem(case: str | Path, material: str | None = None, agents: int | No
                  mesh_scale: float = 1.0, fixtures_per_agent: int | None = None) -> Problem:
     """A problem from a catalog name or a TOML path, optionally with another material, agent count
     or number of pads per agent."""
-    spec = load_case_spec(case, material, agents)
-    if fixtures_per_agent is not None:
-        spec = spec.with_fixtures_per_agent(fixtures_per_agent)
-    return Problem(spec, mesh_scale)
+    return Problem(load_case_spec(case, material, agents, fixtures_per_agent), mesh_scale)

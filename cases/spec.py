@@ -189,6 +189,16 @@ class CaseSpec:
                             f"got {m}")
         return replace(self, effector=replace(self.effector, per_agent=m))
 
+    def check_pad_limit(self, key: str) -> CaseSpec:
+        """The spec, if its pad limit (``agents.pads``) is still a limit: fewer pads than its robots
+        could place (``with_agents`` and ``with_fixtures_per_agent`` may change that)."""
+        pads, n, m = self.effector.pads, self.n_agents, self.effector.per_agent
+        if pads and pads >= n * m:
+            raise CaseError(self.source, key, f"{n} robots of {m} pad(s) place at most {n * m} pads, so the "
+                            f"case's limit of {pads} (agents.pads) would be no limit; ask for more than "
+                            f"{pads} pads in all")
+        return self
+
     def with_mesh_scale(self, factor: float) -> CaseSpec:
         """Every element size multiplied by ``factor`` (0.5 = twice as fine)."""
         mesh = replace(self.mesh, size=self.mesh.size * factor,
@@ -262,8 +272,9 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def load_case_spec(name_or_path: str | Path, material: str | None = None,
-                   n_agents: int | None = None) -> CaseSpec:
-    """Read and validate a case; ``material`` and ``n_agents`` override the file's choice."""
+                   n_agents: int | None = None, fixtures_per_agent: int | None = None) -> CaseSpec:
+    """Read and validate a case; ``material``, ``n_agents`` and ``fixtures_per_agent`` override the
+    file's choice (the overrides together must leave a pad limit a limit)."""
     path = resolve_case(name_or_path)
     data, source = read_toml(path)
     spec = parse_case(data, source, default_name=path.stem)
@@ -272,8 +283,12 @@ def load_case_spec(name_or_path: str | Path, material: str | None = None,
             raise CaseError(source, "--material",
                             f"unknown material '{material}' (known: {', '.join(MATERIALS)})")
         spec = spec.with_material(MATERIALS[material])
+    if fixtures_per_agent is not None:
+        spec = spec.with_fixtures_per_agent(fixtures_per_agent)
     if n_agents is not None:
         spec = spec.with_agents(n_agents)
+    if n_agents is not None or fixtures_per_agent is not None:
+        spec.check_pad_limit("agents.count" if n_agents is not None else "agents.fixtures_per_agent")
     return spec
 
 

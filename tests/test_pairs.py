@@ -153,6 +153,18 @@ def test_catalog_pairs_cases():
     assert more.options.shape[1] == 2 and more.n_agents == 8
 
 
+@pytest.mark.parametrize("override", [{"agents": 3}, {"agents": 1, "fixtures_per_agent": 3}])
+def test_fewer_robots_than_the_pad_limit_is_refused_in_one_line(override):
+    """--agents (or fixtures_per_agent) that leaves the case's pad limit no limit is an error, as the
+    same numbers written in the case file are, not a limit kept silently."""
+    with pytest.raises(FixbenchError, match="would be no limit") as exc:
+        load_problem("wing_panel_pads_small", **override)
+    assert "\n" not in str(exc.value) and "wing_panel_pads_small.toml" in str(exc.value)
+    assert load_problem("wing_panel_pads_small", agents=5).n_agents == 5  # still a limit: accepted
+    two = load_problem("wing_panel_pads_small", agents=2, fixtures_per_agent=2)  # 4 pads > 3: accepted
+    assert two.n_agents == 2 and two.spec.effector.per_agent == 2
+
+
 def test_pso_on_pairs_beats_random_search():
     """pso codes a pair by its centre and the offset between its pads: its swarm spreads over the
     robot's pairs (in the pads' own coordinates most of the box is no pair, and the first population
