@@ -78,6 +78,9 @@ def test_milp_bound_brackets_the_optimum(tiny):
     assert (lower <= truth.max_deformation * (1 + 1e-7)).all()
     assert (milp.max_deformation >= truth.max_deformation * (1 - 1e-12)).all()
     assert (milp.max_deformation * (1 - np.array(milp.info["gaps"])) <= lower * (1 + 1e-9)).all()
+    assert milp.info["proven"] == (milp.info["gap"] <= get("exact").Config().proven_gap)
+    strict = get("exact")(max_enumeration=1, proven_gap=-1.0).solve(tiny, None)  # nothing is proven
+    assert not strict.info["proven"] and strict.info["gap"] == milp.info["gap"]
 
 
 def test_milp_refuses_too_many_columns(tiny):
