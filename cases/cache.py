@@ -1,5 +1,8 @@
 """On-disk cache of the oracle's compliance data: paid once, memory-mapped by every later process.
 
+(Other data derived from catalog cases may share the store under keys of their own: a planner's
+case library, for one; everything below holds for them too.)
+
 Building the deformation oracle of a full part means one sparse back-solve per compliance column
 (the wing panel: 9,999 columns, 20-70 s) and every process that builds the problem pays it again:
 each matrix worker, each ``fixbench solve``. :meth:`fixbench.cases.oracle.Oracle.prepare` computes every

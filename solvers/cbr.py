@@ -1,4 +1,4 @@
-"""Case-based reasoning: retrieve solved (part, material, task) cases, adapt their layouts, polish.
+"""Case-based reasoning: retrieve solved (part, material, task) cases, adapt, revise, retain.
 
 **Library.** :func:`build_library` solves source problems offline with another registered planner
 (default ``greedy``, else ``random``) and writes one JSON file: for each solved task, its feature
@@ -7,9 +7,10 @@ vectors (below) and its fixture *positions* in metres relative to the part's bou
 ``sources`` list with the samples each source solve spent; ``library_samples`` is their sum. These
 offline samples are reported apart from the online ones (``info["library_samples"]``).
 ``Config.library`` names the file; a missing file is built there on first use from
-``Config.bootstrap``. Without a path the library is built from ``bootstrap`` in memory (kept for
-the process, never written: no state outside the run) (the four ``*_small`` catalog cases,
-``bootstrap_budget`` samples per task; about a minute).
+``Config.bootstrap``. Without a path the library is built from ``bootstrap`` (the four ``*_small``
+catalog cases, ``bootstrap_budget`` samples per task), kept in memory for the process and, where
+the run names a disk cache, stored there for the run's other processes (:func:`bootstrap_library`;
+never anywhere else: no state outside the run).
 
 Two honest settings (``exclude``): ``"part"`` (default) leaves the query's part out (transfer
 between parts); ``"task"`` leaves out only the query's own task of the same case and material, so
@@ -48,11 +49,22 @@ caps the samples a task may spend (-1: its whole share; with an unlimited budget
 adaptation is returned unevaluated. A task's layout is the one with the lowest max deformation
 evaluated on it. Shared mode pools the neighbours of every task, ordered by distance, and judges
 layouts on every task (n_tasks samples each).
+
+**Retain** (``retain``, per-task mode): each task revised in this run joins the cases that later
+tasks retrieve, with its best evaluated layout: tasks are solved in order, so task t may retrieve
+any revised task before it (with the library's cases, nearest first), and on the held-out track,
+where only the training tasks are revised, every held-out task may retrieve every training task.
+The exclusion (``exclude``) concerns the offline library only: a run's own revised tasks are
+experience it paid for with its own counted samples. Retained cases live in memory for the run and
+are never written to the library file; ``info["retained"]`` counts them, ``info["neighbours"]``
+marks them ``retained:``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +72,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from fixbench.cases import cache
 from fixbench.cases.files import write_text_atomic
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
@@ -109,6 +122,10 @@ class CBRConfig(PlannerConfig):
     """Which library entries a query may not use: "part" (leave one part out: transfer between
     parts), "task" (only the query's own task of the same case and material) or "none" (everything:
     a library check, not a benchmark setting: the query finds its own offline solutions)."""
+
+    retain: bool = True
+    """Retain each revised task of the run as a case that later tasks retrieve (the 4R cycle's fourth
+    step; in memory for the run, never written to the library file)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -187,24 +204,51 @@ def build_library(problems: list[Problem], planner: str | None = None, budget: i
     for problem in problems:
         share = budget if per_task_budget is None else per_task_budget * problem.n_tasks
         result = solver.solve(problem, share, seed=seed, mode="per-task")
-        lo, size = _box(problem)
         sources.append({"case": problem.name, "material": problem.spec.material.name, "planner": name,
                         "budget": share, "seed": seed, "samples": int(result.samples)})
-        for t in range(problem.n_tasks):
-            entries.append({
-                "case": problem.name, "part": problem.spec.part, "material": problem.spec.material.name,
-                "task": t, "task_name": problem.tasks[t].name,
-                "part_features": part_features(problem).tolist(),
-                "material_features": material_features(problem).tolist(),
-                "task_features": task_features(problem, t).tolist(),
-                "positions_m": (problem.points[result.layouts[t]]
-                                - np.tile(lo, problem.points.shape[1] // 2)).tolist(),
-                "box_m": size.tolist(), "score_m": float(result.max_deformation[t])})
+        entries += [entry(problem, t, result.layouts[t], float(result.max_deformation[t]))
+                    for t in range(problem.n_tasks)]
     library = {"format": FORMAT, "library_samples": int(sum(s["samples"] for s in sources)),
                "sources": sources, "entries": entries}
     if path is None:
         return library
     write_text_atomic(Path(path).expanduser(), json.dumps(library, indent=1), ".json.tmp")
+    return library
+
+
+def entry(problem: Problem, task: int, layout: np.ndarray, score_m: float) -> dict:
+    """One case: a task's features and its layout's positions (metres from the box corner)."""
+    lo, size = _box(problem)
+    return {"case": problem.name, "part": problem.spec.part, "material": problem.spec.material.name,
+            "task": task, "task_name": problem.tasks[task].name,
+            "part_features": part_features(problem).tolist(),
+            "material_features": material_features(problem).tolist(),
+            "task_features": task_features(problem, task).tolist(),
+            "positions_m": (problem.points[layout] - np.tile(lo, problem.points.shape[1] // 2)).tolist(),
+            "box_m": size.tolist(), "score_m": score_m}
+
+
+def bootstrap_library(cases: tuple[str, ...], per_task_budget: int) -> dict:
+    """The library built from catalog ``cases``, kept in the disk cache where one is named.
+
+    Building it means solving every task of every case (about 20 s for the four ``*_small`` cases),
+    and each matrix worker's process would pay it again. Where ``$FIXBENCH_CACHE_DIR`` names a
+    folder (``fixbench run`` names ``DIR/oracle-cache``) the library is stored there, checksummed, as
+    the oracle's data are (:mod:`fixbench.cases.cache`), under a hash of the cases' full specs, the
+    budget and the source of every planner module; elsewhere it is built in memory. The build is
+    deterministic (seed 0), so a stored library is the one a build would give.
+    """
+    problems = [load_problem(c) for c in cases]
+    content = hashlib.sha1(pickle.dumps(([p.spec for p in problems], per_task_budget)))
+    for module in sorted(Path(__file__).parent.glob("*.py")):
+        content.update(module.read_bytes())
+    k = cache.key(f"cbr-library:{content.hexdigest()}")
+    saved = cache.load(k)
+    if saved is not None:
+        return json.loads(saved["library"].tobytes())
+    library = build_library(problems, budget=None, per_task_budget=per_task_budget)
+    cache.store(k, {"library": np.frombuffer(json.dumps(library).encode(), dtype=np.uint8)},
+                description=f"cbr case library: {', '.join(cases)}, {per_task_budget} samples a task")
     return library
 
 
@@ -291,8 +335,7 @@ class CaseBasedReasoning(Planner):
                 raise PlannerError("planner 'cbr': the library holds nothing but the query's own tasks")
         dist, idx = dist[:, :k], idx[:, :k]
         info = {"library_samples": library["library_samples"], "distance": dist[:, 0].tolist(),
-                "neighbours": [[f"{entries[i]['case']}/{entries[i]['material']}/task{entries[i]['task']}"
-                                for i in row] for row in idx]}
+                "neighbours": [[_name(entries[i]) for i in row] for row in idx], "retained": 0}
         if mode == "shared":
             order = np.argsort(dist, axis=None, kind="stable")
             options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx.ravel()[order]])
@@ -301,16 +344,26 @@ class CaseBasedReasoning(Planner):
             best = ev.shared_layout if ev.shared_layout is not None else options[0]
             return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
-        left = len(ev.tasks)  # tasks still to polish; held-out tasks get the adaptation, no sample
-        for t in range(problem.n_tasks):
-            options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx[t]])
-            if t not in ev.tasks:
+        training = set(ev.tasks.tolist())
+        left = len(training)  # tasks still to revise; held-out tasks get the adaptation, no sample
+        kept: list[tuple[np.ndarray, dict]] = []  # retained cases of this run, with their vectors
+        # training tasks in order, then the held-out ones (which may retrieve every retained task)
+        for t in sorted(range(problem.n_tasks), key=lambda t: (t not in training, t)):
+            near = sorted([(d, entries[i]) for d, i in zip(dist[t], idx[t])]
+                          + [(float(np.linalg.norm(v - query[t])), e) for v, e in kept],
+                          key=lambda x: x[0])[:k]  # stable: a library case before an equally near one
+            info["distance"][t], info["neighbours"][t] = near[0][0], [_name(e) for _, e in near]
+            options = _unique([adapt(problem, e, cfg.map_normalised) for _, e in near])
+            if t not in training:
                 layouts[t] = options[0]
                 continue
             budget = self._share(ev.remaining // left, cfg)
             left -= 1
             self._revise(problem, lambda L, t=t: ev.fitness(t, L, self._soft), options, budget, rng)
             layouts[t] = ev.best_layout[t] if np.isfinite(ev.best[t]) else options[0]
+            if cfg.retain and np.isfinite(ev.best[t]):  # revised on this task: a case from now on
+                kept.append((query[t], entry(problem, t, layouts[t], float(ev.best[t])) | {"retained": True}))
+        info["retained"] = len(kept)
         return layouts, info
 
     @staticmethod
@@ -327,9 +380,8 @@ class CaseBasedReasoning(Planner):
             raise PlannerError("planner 'cbr': no library: set library=PATH or bootstrap cases")
         if key not in _MEMORY:
             _MEMORY.clear()
-            _MEMORY[key] = build_library([load_problem(c) for c in cfg.bootstrap], budget=None,
-                                         per_task_budget=cfg.bootstrap_budget)
-        return _MEMORY[key], "built in memory from " + ", ".join(cfg.bootstrap)
+            _MEMORY[key] = bootstrap_library(cfg.bootstrap, cfg.bootstrap_budget)
+        return _MEMORY[key], "built from " + ", ".join(cfg.bootstrap)
 
     _soft = LocalConfig.soft_power  # the revising search minimises local's soft max
 
@@ -348,6 +400,11 @@ class CaseBasedReasoning(Planner):
             return
         starts = np.array(options[:budget])
         local_search(problem, fitness, budget, starts, rng, LocalConfig())
+
+
+def _name(e: dict) -> str:
+    """How ``info["neighbours"]`` names a case: a retained one is marked as this run's."""
+    return ("retained:" if e.get("retained") else "") + f"{e['case']}/{e['material']}/task{e['task']}"
 
 
 def _unique(layouts: list[np.ndarray]) -> list[np.ndarray]:

@@ -38,9 +38,16 @@ budget they are not unique), and relaxed forces spread over neighbouring pads, s
 takes the candidate of its set nearest to the mass-weighted centroid of its pads (no sample), and
 its ``pool`` nearest candidates to that centroid are what polishing may swap in. Polish (counted)
 is coordinate descent: evaluate the rounded layout, then, agent by agent, every swap to an
-unseen pool candidate, keep the best, until a sweep brings no gain or ``polish_samples`` (per
-task; in shared mode each layout is judged on every task, n_tasks samples) are spent.
-``polish_samples=0`` returns the rounded layout unevaluated.
+unseen pool candidate, keep the best, until a sweep brings no gain or the task's polish budget
+is spent. What the descent leaves of that budget goes to a local search in the plane from its
+layout (:func:`fixbench.solvers.local.local_search` with the ``local`` planner's defaults, over
+every candidate, screened out or not; its start costs a sample again): a relaxation is solved to
+find a start, and a planner that stopped at the pools' optimum would leave most of its samples
+unspent (on the full wing panel at 100 samples a task it spent 21,102 of 50,000). The polish
+budget is ``polish_samples`` a task (-1: the task's whole fair share of what the reads leave; with
+an unlimited budget, ``samples_per_task``); in shared mode each layout is judged on every task, n_tasks samples.
+``polish_samples=0`` returns the rounded layout unevaluated. A task's layout is the best one
+evaluated on it.
 
 Sizes and limits. The QP has ``n_rows * n_tasks_in_qp + n_candidates`` variables; on the small
 cases (at most 300 rows) each solve takes well under a second. On the full cases the compliance
@@ -67,6 +74,7 @@ import scipy.sparse as sp
 from fixbench.cases.errors import BudgetExhausted, CaseError
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
+from fixbench.solvers.local import LocalConfig, local_search
 from fixbench.solvers.registry import register
 
 FIELDS = ("bending", "membrane")
@@ -89,8 +97,12 @@ class QPConfig(PlannerConfig):
     pool: int = 5
     """Candidates per agent (nearest to its force centroid first) that polishing may swap in."""
 
-    polish_samples: int = 40
-    """Counted evaluations per task for polishing (shared mode: layouts judged on every task)."""
+    polish_samples: int = -1
+    """Counted layouts per task for polishing (shared mode: layouts judged on every task); -1: the
+    task's whole share of the budget left after the reads."""
+
+    samples_per_task: int = 40
+    """Polish layouts per task when the budget is unlimited and ``polish_samples`` is -1."""
 
     max_candidates_per_agent: int = 0
     """Screen each agent's set to this many evenly spaced candidates before reading (0 = all)."""
@@ -139,15 +151,24 @@ class QPPlanner(Planner):
                 "qp_status": []}
         if mode == "shared":
             mass = qp.masses([resp[t] for t in tasks], info)
-            budget = int(min(cfg.polish_samples, ev.remaining // problem.n_tasks))
-            layout = polish(problem, ev, sets, cand, mass, cfg, None, budget)
-            return np.tile(layout, (problem.n_tasks, 1)), info
+            budget = self._share(ev.remaining // problem.n_tasks)
+            layout = polish(problem, ev, sets, cand, mass, cfg, None, budget, rng)
+            best = ev.shared_layout if ev.shared_layout is not None else layout
+            return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
         for i, t in enumerate(tasks):
             mass = qp.masses([resp[t]], info)
-            budget = int(min(cfg.polish_samples, ev.remaining // (len(tasks) - i)))  # fair share
-            layouts[t] = polish(problem, ev, sets, cand, mass, cfg, t, budget)
+            budget = self._share(ev.remaining // (len(tasks) - i))  # fair share
+            layout = polish(problem, ev, sets, cand, mass, cfg, t, budget, rng)
+            layouts[t] = ev.best_layout[t] if np.isfinite(ev.best[t]) else layout
         return layouts, info
+
+    def _share(self, share: float) -> int:
+        """Polish layouts of one task (one shared search) out of its fair ``share``."""
+        cfg = self.config
+        if cfg.polish_samples >= 0:
+            return int(min(cfg.polish_samples, share))
+        return int(share) if np.isfinite(share) else cfg.samples_per_task
 
 
     def screen_limit(self, problem: Problem) -> int:
@@ -288,10 +309,25 @@ def single_pad(d: FieldData, d0: np.ndarray) -> tuple[float, float]:
 
 
 def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: np.ndarray,
-           mass: np.ndarray, cfg: QPConfig, task: int | None, budget: int) -> np.ndarray:
-    """Round to the force centroids, then coordinate descent over the pools (module docstring)."""
-    if not problem.spec.effector.simple:
-        return _polish_options(problem, ev, cand, mass, cfg, task, budget)
+           mass: np.ndarray, cfg: QPConfig, task: int | None, budget: int,
+           rng: np.random.Generator) -> np.ndarray:
+    """Round to the force centroids, descend over the pools, then search on in the plane with what
+    the descent left of ``budget`` (module docstring); returns the descent's layout."""
+    pools = _round_options(problem, cand, mass, cfg) if not problem.spec.effector.simple \
+        else _round(problem, sets, mass, cfg)
+    layout = np.array([p[0] for p in pools], dtype=np.int64)
+    layout, left = coordinate_descent(problem, ev, layout, pools, budget, task, {})
+    if left > 0:  # local's defaults, its soft max included (the start costs one sample more)
+        soft = LocalConfig.soft_power or None
+
+        def fitness(layouts: np.ndarray) -> np.ndarray:
+            return ev.shared_fitness(layouts, soft) if task is None else ev.fitness(task, layouts, soft)
+        local_search(problem, fitness, left, layout[None, :], rng, LocalConfig())
+    return layout
+
+
+def _round(problem: Problem, sets: list[np.ndarray], mass: np.ndarray, cfg: QPConfig) -> list[np.ndarray]:
+    """Each agent's pool: its ``pool`` candidates nearest to its pads' force centroid, nearest first."""
     xy = problem.candidates
     offsets = np.cumsum([0] + [len(s) for s in sets])
     pools = []
@@ -300,14 +336,12 @@ def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: 
         centre = m @ xy[s] / m.sum() if m.sum() > 0 else xy[s].mean(axis=0)
         dist = np.sum((xy[s] - centre) ** 2, axis=1)
         pools.append(s[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
-    layout = np.array([p[0] for p in pools], dtype=np.int64)
-    return coordinate_descent(problem, ev, layout, pools, budget, task, {})
+    return pools
 
 
-def _polish_options(problem: Problem, ev: TracedEvaluator, cand: np.ndarray, mass: np.ndarray,
-                    cfg: QPConfig, task: int | None, budget: int) -> np.ndarray:
-    """Rounding when a robot places m pads (or none): each robot takes its action whose pads hold
-    the most force mass, its pool the ``pool`` actions nearest to it in the plane (``Problem.points``)."""
+def _round_options(problem: Problem, cand: np.ndarray, mass: np.ndarray, cfg: QPConfig) -> list[np.ndarray]:
+    """Pools when a robot places m pads (or none): each robot's action whose pads hold the most force
+    mass first, then the ``pool`` - 1 actions nearest to it in the plane (``Problem.points``)."""
     of = np.zeros(len(problem.candidates))
     of[cand] = mass
     pools = []
@@ -317,13 +351,13 @@ def _polish_options(problem: Problem, ev: TracedEvaluator, cand: np.ndarray, mas
         best = acts[int(np.argmax(score))]
         dist = np.sum((problem.points[acts] - problem.points[best]) ** 2, axis=1)
         pools.append(acts[np.argsort(dist, kind="stable")[:max(cfg.pool, 1)]])
-    layout = np.array([p[0] for p in pools], dtype=np.int64)
-    return coordinate_descent(problem, ev, layout, pools, budget, task, {})
+    return pools
 
 
 def coordinate_descent(problem: Problem, ev: TracedEvaluator, layout: np.ndarray, pools: list[np.ndarray],
-                       budget: int, task: int | None, known: dict[tuple, float]) -> np.ndarray:
+                       budget: int, task: int | None, known: dict[tuple, float]) -> tuple[np.ndarray, int]:
     """Counted polish: agent by agent, try every unseen swap to a pool candidate; keep the best.
+    Returns the layout and what is left of ``budget``.
 
     ``budget`` counts layouts (each costs one sample, n_tasks in shared mode: ``task`` None);
     ``known`` maps layouts already evaluated to their values (the start is evaluated if it is not).
@@ -338,7 +372,7 @@ def coordinate_descent(problem: Problem, ev: TracedEvaluator, layout: np.ndarray
     layout = np.asarray(layout, dtype=np.int64)
     if tuple(layout.tolist()) not in known:
         if budget < 1:
-            return layout
+            return layout, budget
         judge(layout[None, :])
         budget -= 1
     best = known[tuple(layout.tolist())]
@@ -358,4 +392,4 @@ def coordinate_descent(problem: Problem, ev: TracedEvaluator, layout: np.ndarray
                 best, layout, improved = vals[i], trial[i], True
             if budget <= 0:
                 break
-    return layout
+    return layout, budget

@@ -1,4 +1,4 @@
-"""The cbr planner: library building, zero-sample retrieval, counted polish, degradation far away."""
+"""The cbr planner: library building, zero-sample retrieval, counted revision, retention, degradation far away."""
 
 from __future__ import annotations
 
@@ -100,3 +100,51 @@ def test_revise_spends_the_budget_and_never_ends_worse_than_the_adaptation(libra
     assert revised.max_deformation.mean() < start.max_deformation.mean()
     capped = CaseBasedReasoning(library=str(path), polish_samples=5, exclude="none").solve(query, 400, seed=0)
     assert capped.samples <= 5 * query.n_tasks
+
+
+def test_retained_training_tasks_serve_the_held_out_ones(tmp_path):
+    """Retain: a revised training task becomes a case; a held-out task whose nearest case it is acts
+    with that task's revised layout (mapped back exactly), at zero samples. Without retain, or with
+    nothing revised (polish_samples=0), only library cases are retrieved."""
+    path = tmp_path / "fan.json"
+    build_library([Problem(load_case_spec("fan_small").with_tasks([0, 3]))], budget=100, path=path)
+    query = load_problem("wing_panel_small")
+    train = [0, 2]
+    on = CaseBasedReasoning(library=str(path)).solve(query, 20 * len(train), seed=0, train_tasks=train)
+    assert on.info["retained"] == len(train) and on.samples == 20 * len(train)
+    firsts = {t: on.info["neighbours"][t][0] for t in on.held_out.tolist()}
+    assert all(name.startswith("retained:") for name in firsts.values()), firsts
+    for t, name in firsts.items():
+        source = int(name.rsplit("task", 1)[1])
+        assert source in train and np.array_equal(on.layouts[t], on.layouts[source])
+    for cfg in ({"retain": False}, {"polish_samples": 0}):
+        off = CaseBasedReasoning(library=str(path), **cfg).solve(query, 20 * len(train), seed=0, train_tasks=train)
+        assert off.info["retained"] == 0
+        assert not any(n.startswith("retained:") for row in off.info["neighbours"] for n in row)
+
+
+def test_bootstrap_library_is_built_once_into_the_runs_cache(tmp_path, monkeypatch):
+    """Where a disk cache is named, the bootstrap library is stored there and a later process loads it
+    instead of solving every task again (the same library); a damaged entry is rebuilt, not trusted;
+    without a cache nothing is written."""
+    from fixbench.cases import cache
+    from fixbench.solvers import cbr
+
+    monkeypatch.setenv(cache.ENV, "off")
+    plain = cbr.bootstrap_library(("fan_small",), 3)
+    monkeypatch.setenv(cache.ENV, str(tmp_path))
+    built = cbr.bootstrap_library(("fan_small",), 3)
+    assert built == plain
+    [stored] = cache.entries()
+    assert "cbr case library" in stored["description"]
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("built again")
+    monkeypatch.setattr(cbr, "build_library", no_build)
+    assert cbr.bootstrap_library(("fan_small",), 3) == built  # loaded, not built
+    with pytest.raises(AssertionError, match="built again"):
+        cbr.bootstrap_library(("fan_small",), 4)  # another budget: another library
+    npy = next(p for p in (tmp_path / stored["key"]).iterdir() if p.suffix == ".npy")
+    npy.write_bytes(npy.read_bytes()[:-3] + b"xyz")
+    with pytest.raises(AssertionError, match="built again"):  # damaged: not trusted
+        cbr.bootstrap_library(("fan_small",), 3)

@@ -78,7 +78,8 @@ def test_same_seed_same_result(fan2):
 
 def test_a_budget_too_small_for_one_move_is_spent_on_sampling_not_wasted():
     """Below one complete check of an agent's set, greedy samples (half random layouts, half single-agent
-    moves) and lands near random search; it used to spend everything on part of one agent's check."""
+    moves) and lands near random search; it used to spend everything on part of one agent's check.
+    So it does up to one complete round of checks (every agent once); from there it best-responds."""
     p = Problem(load_case_spec("wing_panel_small"))
     spt = max(len(a) for a in p.action_sets) // 3
     greedy = [get("greedy")().solve(p, spt * p.n_tasks, seed=s) for s in range(4)]
@@ -91,3 +92,8 @@ def test_a_budget_too_small_for_one_move_is_spent_on_sampling_not_wasted():
         for task, _, _, b in r.trace:
             best[task] = min(best.get(task, np.inf), b)
         assert np.allclose(r.max_deformation, [best[t] for t in range(p.n_tasks)], rtol=1e-12)
+    one_round = sum(len(a) for a in p.action_sets)
+    assert max(len(a) for a in p.action_sets) < one_round - 1
+    below = get("greedy")().solve(p, (one_round - 1) * p.n_tasks, seed=0)  # checks fit, a round does not
+    at = get("greedy")().solve(p, one_round * p.n_tasks, seed=0)
+    assert below.info["sampled"] == p.n_tasks and at.info["sampled"] == 0

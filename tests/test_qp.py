@@ -1,4 +1,4 @@
-"""The qp planner: valid layouts, exact sample accounting, budget, determinism, beats random."""
+"""The qp planner: valid layouts, exact sample accounting, budget, determinism, revision, beats random."""
 
 from __future__ import annotations
 
@@ -59,3 +59,14 @@ def test_beats_random_at_equal_budget(fan):
     q = QPPlanner().solve(fan, None, seed=0)
     rand = np.mean([RandomSearch().solve(fan, q.samples, seed=s).max_deformation.mean() for s in range(3)])
     assert q.max_deformation.mean() < 0.8 * rand
+
+
+def test_revision_spends_the_budget_and_improves_on_the_pools():
+    """What the pools' descent leaves of a task's share goes to local's search from its layout: the
+    whole budget is spent and the result is better than stopping at the pools' optimum."""
+    spar = load_problem("wing_spar_small")
+    full = QPPlanner().solve(spar, 1200, seed=0)
+    pools = QPPlanner(polish_samples=40).solve(spar, 1200, seed=0)
+    assert full.samples == 1200 and pools.samples < 1200
+    assert full.max_deformation.mean() < 0.95 * pools.max_deformation.mean()
+    spar.check_layouts(full.layouts)
