@@ -34,6 +34,7 @@ class PlannerEntry:
     budget: int | None | str = "matrix"  # "matrix" = use the matrix's budgets; None = unlimited
     max_samples_per_task: int | None = None  # the budget sweep stops here for this planner
     label: str = ""  # how reports name this entry (default: the name and its config)
+    cases: tuple[str, ...] = ()  # the matrix's cases this entry runs on (empty: every one)
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,8 @@ class Matrix:
                 self.cases, self.materials, self.agents, self.modes, sweep, self.planners, self.seeds):
             if spt is not None and p.max_samples_per_task is not None and spt > p.max_samples_per_task:
                 continue
+            if p.cases and case not in p.cases:
+                continue
             b, s = (budget, spt) if p.budget == "matrix" else (p.budget, None)
             out.append(Cell(p.name, p.config, case, mat, agents, mode, b, seed, self.tasks, s,
                             self.heldout_every if mode == "held-out" else None, p.label))
@@ -123,6 +126,12 @@ def task_subset(n_tasks: int, wanted: int | None) -> list[int]:
     if wanted is None or wanted >= n_tasks:
         return list(range(n_tasks))
     return sorted({int(round(x)) for x in np.linspace(0, n_tasks - 1, wanted)})
+
+
+def _beside(matrix: Path, case: str) -> str:
+    """A case as the matrix means it: a case file is found beside the matrix (not in the current
+    directory); a catalog name stays a name."""
+    return str(matrix.parent / case) if case.endswith(".toml") and not Path(case).is_absolute() else case
 
 
 def _list(r: Reader, key: str, kind, default=...) -> list:
@@ -181,8 +190,7 @@ def load_matrix(path: str | Path) -> Matrix:
     r.text("description", "")
     cases = []
     for c in _list(r, "cases", str):
-        # a case file is found beside the matrix (not in the current directory), checked here
-        where = str(path.parent / c) if c.endswith(".toml") and not Path(c).is_absolute() else c
+        where = _beside(path, c)
         try:
             resolve_case(where)
         except CaseError as exc:
@@ -258,8 +266,12 @@ def load_matrix(path: str | Path) -> Matrix:
             raise pr.error("budget", f"must be a positive whole number or \"unlimited\", got {budget!r}")
         cap = pr.integer("max_samples_per_task", None, minimum=1)
         label = pr.text("label", "")
+        only = tuple(_beside(path, c) for c in _list(pr, "cases", str)) if pr.raw("cases", None) is not None else ()
+        for c in only:
+            if c not in cases:
+                raise pr.error("cases", f"'{c}' is not one of the matrix's cases ({', '.join(cases)})")
         pr.finish()
-        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label))
+        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only))
     labels = [p.label or p.name + (str(p.config) if p.config else "") for p in planners]
     if len(set(labels)) != len(labels):
         raise r.error("planners", "two entries are the same planner and config: give them different labels")

@@ -332,7 +332,7 @@ def rescore(run_dir, echo=print) -> int:
         m = metrics(_Scored(row, trace), ref)
         if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in REFERENCE_COLUMNS):
             row.update({k: m[k] for k in REFERENCE_COLUMNS})
-            write_json_atomic(store.row_path(cid), row)
+            store.rewrite(row)
             n += 1
     echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
     return n

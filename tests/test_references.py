@@ -14,7 +14,7 @@ import pytest
 import fixbench.cases.references as refs
 from fixbench.bench.cells import compute_reference
 from fixbench.bench.references import Portfolio, build, rescore, update
-from fixbench.bench.store import Store, write_json_atomic
+from fixbench.bench.store import CHECKSUM, Store, row_checksum, write_json_atomic
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import load_case_spec
@@ -113,8 +113,8 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
               "agents": 2, "n_tasks": 6, "mode": "per-task", "error": "", "layouts": json.dumps(good),
               "per_task_m": json.dumps(true), "relative_regret": np.mean(true) / np.mean(snapshot["per_task"]) - 1}
     liar = dict(honest, cell="liar", layouts=json.dumps([bad] * 6), per_task_m=json.dumps([1e-9] * 6))
-    for row in (honest, liar):
-        write_json_atomic(store.row_path(row["cell"]), row)
+    for row in (honest, liar):  # with their checksums, as the store writes rows
+        write_json_atomic(store.row_path(row["cell"]), row | {CHECKSUM: row_checksum(row)})
     changed = update(run, echo=lambda m: None)
     assert list(changed.values()) == [1]
     now = refs.load_reference("fan_small", built["material"], 2)
@@ -122,6 +122,7 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert now["tasks"][2:] == built["tasks"][2:]
     assert now["provenance"][-1]["action"] == "update"
     rows = store.finished()
+    assert set(rows) == {"honest", "liar"}  # rescored rows keep valid checksums: none reads as damaged
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent

@@ -62,6 +62,21 @@ def test_expansion(tmp_path):
     assert len({c.id for c in cells}) == len(cells)
 
 
+def test_a_planner_entry_may_name_its_cases(tmp_path):
+    """``cases`` in a planner entry keeps it to those of the matrix's cases; the other entries' cells
+    and every cell id stay as they were."""
+    both = TRACKS.replace('cases = ["fan_small"]', 'cases = ["fan_small", "wing_panel_small"]')
+    both = both.replace("tasks = 6", "tasks = 3")
+    only = both.replace('name = "random"\n', 'name = "random"\ncases = ["wing_panel_small"]\n', 1)
+    assert only != both
+    full, kept = load_matrix(write(tmp_path, both)).cells(), load_matrix(write(tmp_path, only)).cells()
+    assert {c.case for c in kept if c.planner == "random"} == {"wing_panel_small"}
+    assert {c.id for c in kept} == {c.id for c in full if c.planner != "random" or c.case == "wing_panel_small"}
+    bad = only.replace('cases = ["wing_panel_small"]\n', 'cases = ["bus_panel_small"]\n')
+    with pytest.raises(Exception, match="planners\\[0\\].cases.*not one of the matrix's cases"):
+        load_matrix(write(tmp_path, bad))
+
+
 @pytest.mark.parametrize("edit, words", [
     (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 6, 20]\nbudget = 100"), ["not both"]),
     (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 0]"), ["samples_per_task", "positive"]),
