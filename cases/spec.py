@@ -189,15 +189,14 @@ class CaseSpec:
                             f"got {m}")
         return replace(self, effector=replace(self.effector, per_agent=m))
 
-    def check_pad_limit(self, key: str) -> CaseSpec:
-        """The spec, if its pad limit (``agents.pads``) is still a limit: fewer pads than its robots
-        could place (``with_agents`` and ``with_fixtures_per_agent`` may change that)."""
+    def check_pad_limit(self, key: str) -> None:
+        """Refuse a pad limit (``agents.pads``) that is no limit: as many pads as the robots could
+        place or more (``with_agents`` and ``with_fixtures_per_agent`` may make it so)."""
         pads, n, m = self.effector.pads, self.n_agents, self.effector.per_agent
         if pads and pads >= n * m:
             raise CaseError(self.source, key, f"{n} robots of {m} pad(s) place at most {n * m} pads, so the "
                             f"case's limit of {pads} (agents.pads) would be no limit; ask for more than "
                             f"{pads} pads in all")
-        return self
 
     def with_mesh_scale(self, factor: float) -> CaseSpec:
         """Every element size multiplied by ``factor`` (0.5 = twice as fine)."""

@@ -76,7 +76,7 @@ from fixbench.cases import cache
 from fixbench.cases.files import write_text_atomic
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
-from fixbench.solvers.local import LocalConfig, local_search
+from fixbench.solvers.local import revise, revise_budget
 from fixbench.solvers.registry import available, get, register
 
 TASK_DIMS = 4
@@ -339,8 +339,8 @@ class CaseBasedReasoning(Planner):
         if mode == "shared":
             order = np.argsort(dist, axis=None, kind="stable")
             options = _unique([adapt(problem, entries[i], cfg.map_normalised) for i in idx.ravel()[order]])
-            budget = self._share(ev.remaining // problem.n_tasks, cfg)
-            self._revise(problem, lambda L: ev.shared_fitness(L, self._soft), options, budget, rng)
+            budget = revise_budget(cfg.polish_samples, ev.remaining // problem.n_tasks, cfg.samples_per_task)
+            revise(problem, ev, None, budget, options, rng)
             best = ev.shared_layout if ev.shared_layout is not None else options[0]
             return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.empty((problem.n_tasks, problem.n_agents), dtype=np.int64)
@@ -357,9 +357,9 @@ class CaseBasedReasoning(Planner):
             if t not in training:
                 layouts[t] = options[0]
                 continue
-            budget = self._share(ev.remaining // left, cfg)
+            budget = revise_budget(cfg.polish_samples, ev.remaining // left, cfg.samples_per_task)
             left -= 1
-            self._revise(problem, lambda L, t=t: ev.fitness(t, L, self._soft), options, budget, rng)
+            revise(problem, ev, t, budget, options, rng)
             layouts[t] = ev.best_layout[t] if np.isfinite(ev.best[t]) else options[0]
             if cfg.retain and np.isfinite(ev.best[t]):  # revised on this task: a case from now on
                 kept.append((query[t], entry(problem, t, layouts[t], float(ev.best[t])) | {"retained": True}))
@@ -382,24 +382,6 @@ class CaseBasedReasoning(Planner):
             _MEMORY.clear()
             _MEMORY[key] = bootstrap_library(cfg.bootstrap, cfg.bootstrap_budget)
         return _MEMORY[key], "built from " + ", ".join(cfg.bootstrap)
-
-    _soft = LocalConfig.soft_power  # the revising search minimises local's soft max
-
-    @staticmethod
-    def _share(share: float, cfg: CBRConfig) -> int:
-        """Samples one task (one shared layout search) may spend revising."""
-        if cfg.polish_samples >= 0:
-            return int(min(cfg.polish_samples, share))
-        return int(share) if np.isfinite(share) else cfg.samples_per_task
-
-    @staticmethod
-    def _revise(problem: Problem, fitness, options: list[np.ndarray], budget: int,
-                rng: np.random.Generator) -> None:
-        """Evaluate the adaptations (as many as fit) and search on from the best of them."""
-        if budget < 1:
-            return
-        starts = np.array(options[:budget])
-        local_search(problem, fitness, budget, starts, rng, LocalConfig())
 
 
 def _name(e: dict) -> str:

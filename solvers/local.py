@@ -176,3 +176,28 @@ def local_search(problem: Problem, fitness, budget: int, starts: np.ndarray | No
 def _info(stats: list[tuple[int, int]]) -> dict:
     """Per task (one entry in shared mode): moves taken and kicks."""
     return {"moves": [m for m, _ in stats], "kicks": [k for _, k in stats]}
+
+
+def revise_budget(cap: int, share: float, unlimited: int) -> int:
+    """Samples a planner's revising search may spend on one task (one shared search): ``cap``
+    (-1: the task's whole fair ``share``; with an unlimited budget, ``unlimited``)."""
+    if cap >= 0:
+        return int(min(cap, share))
+    return int(share) if math.isfinite(share) else unlimited
+
+
+def revise(problem: Problem, ev, task: int | None, budget: int, starts, rng: np.random.Generator) -> None:
+    """Revise a start: :func:`local_search` with the ``local`` planner's defaults (its soft max
+    included) from the best of ``starts`` (as many as ``budget`` pays for), on ``task`` (None: the
+    shared layout, judged on every task), within ``budget``. The traced evaluator ``ev`` keeps the
+    best layout it evaluates."""
+    if budget < 1:
+        return
+    soft = LocalConfig.soft_power or None
+    if task is None:
+        def fitness(layouts):
+            return ev.shared_fitness(layouts, soft)
+    else:
+        def fitness(layouts):
+            return ev.fitness(task, layouts, soft)
+    local_search(problem, fitness, budget, np.asarray(starts)[:budget], rng, LocalConfig())

@@ -74,7 +74,7 @@ import scipy.sparse as sp
 from fixbench.cases.errors import BudgetExhausted, CaseError
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
-from fixbench.solvers.local import LocalConfig, local_search
+from fixbench.solvers.local import revise, revise_budget
 from fixbench.solvers.registry import register
 
 FIELDS = ("bending", "membrane")
@@ -151,24 +151,17 @@ class QPPlanner(Planner):
                 "qp_status": []}
         if mode == "shared":
             mass = qp.masses([resp[t] for t in tasks], info)
-            budget = self._share(ev.remaining // problem.n_tasks)
+            budget = revise_budget(cfg.polish_samples, ev.remaining // problem.n_tasks, cfg.samples_per_task)
             layout = polish(problem, ev, sets, cand, mass, cfg, None, budget, rng)
             best = ev.shared_layout if ev.shared_layout is not None else layout
             return np.tile(best, (problem.n_tasks, 1)), info
         layouts = np.full((problem.n_tasks, problem.n_agents), -1, dtype=np.int64)
         for i, t in enumerate(tasks):
             mass = qp.masses([resp[t]], info)
-            budget = self._share(ev.remaining // (len(tasks) - i))  # fair share
+            budget = revise_budget(cfg.polish_samples, ev.remaining // (len(tasks) - i), cfg.samples_per_task)
             layout = polish(problem, ev, sets, cand, mass, cfg, t, budget, rng)
             layouts[t] = ev.best_layout[t] if np.isfinite(ev.best[t]) else layout
         return layouts, info
-
-    def _share(self, share: float) -> int:
-        """Polish layouts of one task (one shared search) out of its fair ``share``."""
-        cfg = self.config
-        if cfg.polish_samples >= 0:
-            return int(min(cfg.polish_samples, share))
-        return int(share) if np.isfinite(share) else cfg.samples_per_task
 
 
     def screen_limit(self, problem: Problem) -> int:
@@ -317,12 +310,7 @@ def polish(problem: Problem, ev: TracedEvaluator, sets: list[np.ndarray], cand: 
         else _round(problem, sets, mass, cfg)
     layout = np.array([p[0] for p in pools], dtype=np.int64)
     layout, left = coordinate_descent(problem, ev, layout, pools, budget, task, {})
-    if left > 0:  # local's defaults, its soft max included (the start costs one sample more)
-        soft = LocalConfig.soft_power or None
-
-        def fitness(layouts: np.ndarray) -> np.ndarray:
-            return ev.shared_fitness(layouts, soft) if task is None else ev.fitness(task, layouts, soft)
-        local_search(problem, fitness, left, layout[None, :], rng, LocalConfig())
+    revise(problem, ev, task, left, layout[None, :], rng)  # the start costs one sample more
     return layout
 
 
