@@ -41,6 +41,13 @@ CHUNK = 32
 #: (the wing panel's is 0.49 GiB, the wing spar's 3.15 GiB); beyond it, columns are computed as
 #: layouts first use them (and the first planners to use them pay for them in their wall time).
 PREPARE_MAX_BYTES = 4 * 2**30
+#: a batch of at least LOCALITY_MIN layouts is evaluated in an order that keeps the rows it reads in
+#: cache: sorted by the blocks of their candidates, a block being as many consecutive candidates as have
+#: LOCALITY_BYTES of influence rows (about a core's L2 cache). Each layout is computed as before, alone,
+#: so the results are the same bits in any order; random layouts of the wing panel at 5 agents read
+#: 51 KB of rows each, and in their given order most of it comes from main memory.
+LOCALITY_MIN = 4096
+LOCALITY_BYTES = 2**20
 
 
 class FieldOracle:
@@ -200,12 +207,26 @@ class Oracle:
             args += [c, h, d, m, np.ascontiguousarray(r)]
         out = np.empty((len(layouts), 7))
         blocks = max(1, min(len(layouts), 8 * numba.get_num_threads()))
-        _evaluate(*args, self.n_meas, float(soft_power or 0.0), blocks, out)
+        if len(layouts) >= LOCALITY_MIN:
+            order = self._locality_order(layouts)
+            args = [a[order] if i % 5 == 4 else a for i, a in enumerate(args)]
+            sorted_out = np.empty_like(out)
+            _evaluate(*args, self.n_meas, float(soft_power or 0.0), blocks, sorted_out)
+            out[order] = sorted_out
+        else:
+            _evaluate(*args, self.n_meas, float(soft_power or 0.0), blocks, out)
         bad = out[:, 6] > 0
         if bad.any():
             raise NumericalError(f"layout {layouts[np.argmax(bad)].tolist()} of task {task} gives a "
                                  "singular constraint system (coincident or overlapping pads?)")
         return out[:, :6]
+
+    def _locality_order(self, layouts: np.ndarray) -> np.ndarray:
+        """Evaluation order of a large batch: lexicographic in the candidates' blocks (LOCALITY_BYTES)."""
+        row_bytes = 8 * sum(fo.per * fo.H.shape[1] for fo in self.fields.values())
+        block = max(1, LOCALITY_BYTES // max(row_bytes, 1))
+        keys = np.floor_divide(layouts, block)  # "no pad" (-1) falls in block -1
+        return np.lexsort(keys.T[::-1])
 
     def compliance(self, field: str, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Coupling rows C and measurement influence H of candidates (what a QP planner reads)."""

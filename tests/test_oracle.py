@@ -56,6 +56,23 @@ def test_batched_equals_one_by_one():
     np.testing.assert_array_equal(batch, single)
 
 
+def test_large_batch_in_locality_order_is_the_same_bits(monkeypatch):
+    """A batch of LOCALITY_MIN layouts or more is evaluated sorted by candidate blocks: every column
+    (soft max too) is the same bits as in the given order, and "no pad" (-1) entries keep their place."""
+    from fixbench.cases import oracle as om
+
+    problem = load_problem("wing_panel_small")
+    rng = np.random.default_rng(5)
+    layouts = np.column_stack([rng.choice(a, 600) for a in problem.action_sets])
+    layouts[::7, 1] = -1  # an idle robot in some layouts
+    monkeypatch.setattr(om, "LOCALITY_BYTES", 4096)  # blocks of a few candidates: a real reordering
+    monkeypatch.setattr(om, "LOCALITY_MIN", 10**9)
+    given_order = problem.oracle.evaluate(2, layouts, soft_power=8.0)
+    assert not np.array_equal(problem.oracle._locality_order(layouts), np.arange(len(layouts)))
+    monkeypatch.setattr(om, "LOCALITY_MIN", 100)
+    np.testing.assert_array_equal(problem.oracle.evaluate(2, layouts, soft_power=8.0), given_order)
+
+
 @pytest.mark.parametrize("power", [1.0, 4.0, 16.0])
 def test_soft_max_equals_direct_solve_and_lies_below_the_max(power):
     problem = load_problem("fan_small")
