@@ -6,6 +6,7 @@
     python -m fixbench.bench.marl table   [--episodes 100] [--seed 0] [--json]
     python -m fixbench.bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
                                           [--episodes 100] [--json]
+    python -m fixbench.bench.marl floor   [--case wing_panel] [--threads T] [--json]
 
 ``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
@@ -16,6 +17,9 @@ runs the full protocol once and reports the wall time split into oracle, action 
 network updates (timed inside the planner). ``table`` compares nashq and iql with the proven optimum
 on every ``*_small`` case. ``heldout`` trains a learner on a fraction of the tasks and compares its
 zero-sample layouts on the other tasks with planners that spend samples on each of them.
+``floor`` measures what one network update of the protocol costs on this machine and what it cannot
+cost less than: the floating-point work of its 11 batched products against this machine's rate on a
+large matrix product, and the bytes of its optimiser pass (:func:`update_floor`).
 
 Oracle set-up (meshing, factorisation, and the compliance columns of every candidate, which the
 oracle otherwise computes lazily the first time a layout uses a candidate) is done and timed
@@ -105,6 +109,99 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
             "mean_max_deformation_m": float(res.max_deformation.mean()),
             "per_task_m": res.max_deformation.tolist(), "episode_return": i["episode_return"],
             "loadavg": os.getloadavg(), "cpus": os.cpu_count()}
+
+
+def update_floor(case: str = "wing_panel", agents: int | None = None, threads: int = 1, repeat: int = 300,
+                 seed: int = 0) -> dict:
+    """One network update of the protocol (nashq, the default config) timed whole and in its parts, beside
+    the bounds this machine puts on it.
+
+    - ``bmm_*``: the update's 11 batched products (forward of the policy and target networks on the
+      chosen actions, backward into the weights) on their own; ``bmm_gflop`` is counted by torch's
+      ``FlopCounterMode`` on a real update (``products_gflop`` on the timed copies of its products: the
+      same), against ``peak_gflops``, this machine's rate on a 2,048-square float32 product at the same
+      thread count;
+    - ``adamw_*``: the fused clip + AdamW + soft target pass over all weights, the bytes it moves (6
+      arrays read, 5 written) and the rate reached;
+    - ``update_ms``: ``td_grad`` + the optimiser step on random replay batches, the median of ``repeat``;
+    - ``floor_updates_s``: the protocol's updates (one a step, 50,000 on the wing panel) reduced to their
+      products at the best rate measured here (theirs or the large product's) plus the optimiser pass as
+      measured: a lower bound for the same arithmetic on this machine, but for what a faster optimiser
+      pass (a memory-bound stream of 11 arrays) could save.
+    """
+    import numba
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from fixbench.solvers.marl_engine import Learner, Update
+    from fixbench.solvers.nashq import NashQConfig
+
+    torch.set_num_threads(threads)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    problem = load_problem(case, agents=agents)
+    cfg = NashQConfig()
+    learner = Learner(problem, cfg, True, torch.device("cpu"), torch.Generator().manual_seed(seed))
+    opt = Update(learner.q, learner.target, cfg.lr, cfg.grad_clip, cfg.tau, torch.device("cpu"))
+    rng = np.random.default_rng(seed)
+    n, nb, sizes = problem.n_agents, cfg.batch, np.array(learner.sizes)
+
+    def batch():
+        return (torch.from_numpy(rng.integers(0, problem.n_tasks, (n, nb))),
+                torch.from_numpy((rng.random((n, nb, n)) * sizes).astype(np.int64)),
+                torch.from_numpy(rng.random((n, nb)).astype(np.float32)))
+
+    def median_ms(fn, k=repeat):
+        fn()
+        times = []
+        for _ in range(k):
+            t = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t)
+        return 1e3 * float(np.median(times))
+
+    batches = [batch() for _ in range(64)]
+    it = iter(range(10**9))
+
+    def update():
+        learner.td_grad(*batches[next(it) % 64], cfg.alpha)
+        opt.step()
+
+    for _ in range(50):
+        update()
+    update_ms = median_ms(update)
+    adamw_ms = median_ms(opt.step)
+    # the 11 products: policy and target forward (layers 0-2), weight gradients of layers 0-2, and the
+    # back-propagated errors of layers 2 and 1 (the output layer's chosen columns are elementwise)
+    n_in, hid = learner.q.shapes[0][1], learner.q.shapes[0][2]
+    x, h = torch.rand(n, nb, n_in), torch.rand(n, nb, hid)
+    w0, w1 = torch.rand(n, n_in, hid), torch.rand(n, hid, hid)
+    gw0, gw1 = torch.empty(n, n_in, hid), torch.empty(n, hid, hid)
+
+    def products():
+        for _ in range(2):
+            torch.bmm(x, w0), torch.bmm(h, w1), torch.bmm(h, w1)
+        torch.bmm(h.transpose(1, 2), h, out=gw1), torch.bmm(h.transpose(1, 2), h, out=gw1)
+        torch.bmm(x.transpose(1, 2), h, out=gw0)
+        torch.bmm(h, w1.transpose(1, 2)), torch.bmm(h, w1.transpose(1, 2))
+
+    with FlopCounterMode(display=False) as counted:
+        learner.td_grad(*batches[0], cfg.alpha)
+    with FlopCounterMode(display=False) as timed:
+        products()
+    flops = counted.get_total_flops()
+    bmm_ms = median_ms(products)
+    a, b = torch.rand(2048, 2048), torch.rand(2048, 2048)
+    peak = 2 * 2048**3 / (median_ms(lambda: torch.mm(a, b), 10) * 1e6)
+    best = max(peak, flops / (bmm_ms * 1e6))  # the best rate this machine showed on either
+    params = learner.q.flat.numel()
+    adamw_bytes = 11 * 4 * params
+    steps = problem.n_tasks * cfg.episodes
+    return {"case": case, "agents": n, "threads": threads, "params": params, "update_ms": update_ms,
+            "bmm_ms": bmm_ms, "bmm_gflop": flops / 1e9, "products_gflop": timed.get_total_flops() / 1e9,
+            "bmm_gflops": flops / (bmm_ms * 1e6), "peak_gflops": peak, "adamw_ms": adamw_ms,
+            "adamw_mb": adamw_bytes / 1e6, "adamw_gbps": adamw_bytes / (adamw_ms * 1e6),
+            "protocol_updates": steps, "updates_s_at_this_rate": steps * update_ms / 1e3,
+            "floor_updates_s": steps * (flops / (best * 1e9) + adamw_ms / 1e3)}
 
 
 def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list[dict]:
@@ -254,6 +351,19 @@ def heldout_cmd(case: str, planner: str, fraction: float, episodes: int, seed: i
     """Train a learner on a fraction of the tasks and compare its zero-sample layouts on the other tasks
     with planners that spend samples on each of them."""
     _print_rows(heldout(case, planner, fraction, episodes, seed), as_json)
+
+
+@cli.command("floor", short_help="One update's cost on this machine and its lower bound.")
+@click.option("--case", default="wing_panel", show_default=True)
+@click.option("--agents", type=int)
+@click.option("--threads", type=int, default=1, show_default=True)
+@click.option("--json", "as_json", is_flag=True)
+def floor_cmd(case: str, agents: int | None, threads: int, as_json: bool) -> None:
+    """Time one network update of the protocol whole and in its parts, beside this machine's peak rate
+    for its products and the bytes of its optimiser pass (no oracle, no samples)."""
+    res = update_floor(case, agents, threads)
+    print(json.dumps(res, indent=1) if as_json else
+          "\n".join(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}" for k, v in res.items()))
 
 
 @cli.command("table", short_help="nashq and iql against the proven optimum, *_small cases.")

@@ -219,3 +219,15 @@ def test_heldout_benchmark_rows():
     assert learner["samples_per_held_out_task"] == 0 and learner["samples"] == 2 * learner["train_tasks"]
     assert [r["samples"] for r in base] == [learner["held_out_tasks"] * b for b in (1, 3)]
     assert all(r["gap_to_best_found_pct"] >= 0 for r in rows)
+
+
+def test_update_floor_times_the_updates_own_products():
+    """fixbench.bench.marl floor: the products it times do the floating-point work torch counts in a real
+    update, and the lower bound it derives lies below what the update costs on the same machine."""
+    from fixbench.bench.marl import update_floor
+
+    r = update_floor("wing_panel_small", repeat=5)
+    assert r["bmm_gflop"] == r["products_gflop"] > 0
+    assert r["protocol_updates"] == 4 * 100
+    assert 0 < r["floor_updates_s"] <= r["updates_s_at_this_rate"]
+    assert r["adamw_mb"] == 11 * 4 * r["params"] / 1e6
