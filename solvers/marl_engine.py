@@ -179,10 +179,15 @@ class Update:
     """
 
     def __init__(self, q: StackedQ, target: StackedQ, lr: float, clip: float, tau: float, device: torch.device,
-                 weight_decay: float = 0.01, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+                 weight_decay: float = 0.01, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8,
+                 fused: bool | None = None):
+        """``fused``: the numba pass (None: on CPU only); False: torch's AdamW and lerp, what runs on a
+        GPU (a test runs that path on the CPU against the fused one)."""
         self.q, self.target, self.lr, self.clip, self.tau = q, target, lr, clip, tau
         self.weight_decay, self.betas, self.eps = weight_decay, betas, eps
-        self.cpu = device.type == "cpu"
+        self.cpu = device.type == "cpu" if fused is None else fused
+        if self.cpu and device.type != "cpu":
+            raise ValueError("the fused update runs on the CPU only")
         self.steps = 0
         if self.cpu:
             self.state = [torch.zeros_like(q.flat) for _ in range(3)]  # m, v, max v

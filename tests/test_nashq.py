@@ -231,3 +231,46 @@ def test_update_floor_times_the_updates_own_products():
     assert r["protocol_updates"] == 4 * 100
     assert 0 < r["floor_updates_s"] <= r["updates_s_at_this_rate"]
     assert r["adamw_mb"] == 11 * 4 * r["params"] / 1e6
+
+
+def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
+    """What runs on a GPU (torch's AdamW + lerp; weights copied to the host for best response), run here
+    on the CPU: the same update as the fused pass to float32 round-off, and a whole short training
+    through it gives valid layouts with every best response still computed."""
+    from fixbench.solvers import marl_engine
+
+    g = torch.Generator().manual_seed(1)
+    nets = [StackedQ(3, 6, 16, 9, torch.Generator().manual_seed(2)) for _ in range(2)]
+    targets = [StackedQ(3, 6, 16, 9) for _ in range(2)]
+    for net, tgt in zip(nets, targets):
+        tgt.load_state_dict(net.state_dict())
+    ups = [Update(nets[0], targets[0], 1e-2, 1e-3, 0.1, torch.device("cpu")),
+           Update(nets[1], targets[1], 1e-2, 1e-3, 0.1, torch.device("cpu"), fused=False)]
+    assert ups[0].cpu and not ups[1].cpu
+    for step in range(3):
+        grad = torch.randn(nets[0].flat.shape, generator=g) * 1e-3 * (step + 1)
+        for net, up in zip(nets, ups):
+            net.flat.grad = grad.clone()
+            up.step()
+    torch.testing.assert_close(nets[1].flat, nets[0].flat, rtol=1e-6, atol=1e-8)
+    torch.testing.assert_close(targets[1].flat, targets[0].flat, rtol=1e-6, atol=1e-8)
+    assert not torch.equal(nets[0].flat, StackedQ(3, 6, 16, 9, torch.Generator().manual_seed(2)).flat)
+
+    class GpuLikeUpdate(Update):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs, fused=False)
+
+    copies = []
+    host = marl_engine.Learner._host_weights
+
+    def copied(self):  # as from a GPU: a fresh host copy of the weights for every action choice
+        w, b = host(self)
+        copies.append(1)
+        return [a.copy() for a in w], [a.copy() for a in b]
+
+    monkeypatch.setattr("fixbench.solvers.nashq.Update", GpuLikeUpdate)
+    monkeypatch.setattr(marl_engine.Learner, "_host_weights", copied)
+    r = get("nashq")(**SMALL).solve(problem, None, seed=0)
+    problem.check_layouts(r.layouts)
+    assert r.samples == 9 and len(copies) > 1  # training steps' best responses and the greedy policy
+    assert np.isfinite(r.info["td_loss"]).all()
