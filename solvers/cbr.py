@@ -57,7 +57,8 @@ where only the training tasks are revised, every held-out task may retrieve ever
 The exclusion (``exclude``) concerns the offline library only: a run's own revised tasks are
 experience it paid for with its own counted samples. Retained cases live in memory for the run and
 are never written to the library file; ``info["retained"]`` counts them, ``info["neighbours"]``
-marks them ``retained:``.
+marks them ``retained:``. By default they compete with the library's cases for the k places;
+``retained_k`` gives them places of their own beside the k library neighbours.
 """
 
 from __future__ import annotations
@@ -126,6 +127,11 @@ class CBRConfig(PlannerConfig):
     retain: bool = True
     """Retain each revised task of the run as a case that later tasks retrieve (the 4R cycle's fourth
     step; in memory for the run, never written to the library file)."""
+
+    retained_k: int = 0
+    """With ``retain``: 0, a task's k neighbours are the nearest of library and retained cases
+    together; n > 0, the k nearest library cases and, beside them, the n nearest retained cases (the
+    run's own cases then never crowd the library out)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -312,6 +318,8 @@ class CaseBasedReasoning(Planner):
         cfg = self.config
         if cfg.k < 1:
             raise PlannerError(f"planner 'cbr': k must be at least 1, got {cfg.k}")
+        if cfg.retained_k < 0:
+            raise PlannerError(f"planner 'cbr': retained_k must be 0 or more, got {cfg.retained_k}")
         if cfg.exclude not in ("part", "task", "none"):
             raise PlannerError(f"planner 'cbr': exclude must be 'part', 'task' or 'none', got '{cfg.exclude}'")
         library, where = self._library(cfg)
@@ -349,9 +357,12 @@ class CaseBasedReasoning(Planner):
         kept: list[tuple[np.ndarray, dict]] = []  # retained cases of this run, with their vectors
         # training tasks in order, then the held-out ones (which may retrieve every retained task)
         for t in sorted(range(problem.n_tasks), key=lambda t: (t not in training, t)):
-            near = sorted([(d, entries[i]) for d, i in zip(dist[t], idx[t])]
-                          + [(float(np.linalg.norm(v - query[t])), e) for v, e in kept],
-                          key=lambda x: x[0])[:k]  # stable: a library case before an equally near one
+            own = sorted([(float(np.linalg.norm(v - query[t])), e) for v, e in kept], key=lambda x: x[0])
+            lib = [(d, entries[i]) for d, i in zip(dist[t], idx[t])]
+            if cfg.retained_k:  # k from the library, beside them up to retained_k of the run's own
+                near = sorted(lib + own[:cfg.retained_k], key=lambda x: x[0])
+            else:  # stable: a library case before an equally near retained one
+                near = sorted(lib + own, key=lambda x: x[0])[:k]
             info["distance"][t], info["neighbours"][t] = near[0][0], [_name(e) for _, e in near]
             options = _unique([adapt(problem, e, cfg.map_normalised) for _, e in near])
             if t not in training:

@@ -123,6 +123,24 @@ def test_retained_training_tasks_serve_the_held_out_ones(tmp_path):
         assert not any(n.startswith("retained:") for row in off.info["neighbours"] for n in row)
 
 
+def test_retained_quota_keeps_the_library_neighbours(tmp_path):
+    """retained_k = n: every task retrieves its k nearest library cases and, beside them, at most n of the
+    run's retained cases (task t has t of them); merged (0), k neighbours in all; a negative quota is refused."""
+    path = tmp_path / "fan.json"
+    build_library([Problem(load_case_spec("fan_small").with_tasks([0, 3]))], budget=100, path=path)
+    query = load_problem("wing_panel_small")
+    k = 2
+    for quota in (1, 3):
+        r = CaseBasedReasoning(library=str(path), k=k, retained_k=quota).solve(query, 10 * query.n_tasks, seed=0)
+        for t, names in enumerate(r.info["neighbours"]):
+            own = [n for n in names if n.startswith("retained:")]
+            assert len(names) - len(own) == k and len(own) == min(t, quota), (t, names)
+    merged = CaseBasedReasoning(library=str(path), k=k).solve(query, 10 * query.n_tasks, seed=0)
+    assert all(len(names) == k for names in merged.info["neighbours"])
+    with pytest.raises(PlannerError, match="retained_k"):
+        CaseBasedReasoning(library=str(path), retained_k=-1).solve(query, 40, seed=0)
+
+
 def test_bootstrap_library_is_built_once_into_the_runs_cache(tmp_path, monkeypatch):
     """Where a disk cache is named, the bootstrap library is stored there and a later process loads it
     instead of solving every task again (the same library); a damaged entry is rebuilt, not trusted;
