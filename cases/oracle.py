@@ -209,7 +209,7 @@ class Oracle:
         blocks = max(1, min(len(layouts), 8 * numba.get_num_threads()))
         if len(layouts) >= LOCALITY_MIN:
             order = self._locality_order(layouts)
-            args = [a[order] if i % 5 == 4 else a for i, a in enumerate(args)]
+            args = [a[order] if i % 5 == 4 else a for i, a in enumerate(args)]  # each field's rows
             sorted_out = np.empty_like(out)
             _evaluate(*args, self.n_meas, float(soft_power or 0.0), blocks, sorted_out)
             out[order] = sorted_out
