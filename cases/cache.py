@@ -109,7 +109,7 @@ def load(k: str) -> dict[str, np.ndarray] | None:
             a = np.load(d / f"{name}.npy", mmap_mode="r", allow_pickle=False)
             if list(a.shape) != m["shape"] or str(a.dtype) != m["dtype"] or _crc(a) != m["crc32"]:
                 raise ValueError(f"{name}.npy does not match its checksum")
-            arrays[name] = np.asarray(a)  # a plain ndarray on the mapping: numpy.memmap adds Python calls to every slice
+            arrays[name] = np.asarray(a)  # a plain ndarray on the mapping (memmap runs Python on every slice)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         _warn(f"{d}: damaged ({exc}); removed, it will be rebuilt")
         shutil.rmtree(d, ignore_errors=True)

@@ -135,7 +135,7 @@ def test_retained_quota_keeps_the_library_neighbours(tmp_path):
         for t, names in enumerate(r.info["neighbours"]):
             own = [n for n in names if n.startswith("retained:")]
             assert len(names) - len(own) == k and len(own) == min(t, quota), (t, names)
-    merged = CaseBasedReasoning(library=str(path), k=k).solve(query, 10 * query.n_tasks, seed=0)
+    merged = CaseBasedReasoning(library=str(path), k=k, retained_k=0).solve(query, 10 * query.n_tasks, seed=0)
     assert all(len(names) == k for names in merged.info["neighbours"])
     with pytest.raises(PlannerError, match="retained_k"):
         CaseBasedReasoning(library=str(path), retained_k=-1).solve(query, 40, seed=0)
