@@ -133,6 +133,7 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
+    from fixbench.bench.perf import median_time
     from fixbench.solvers.marl_engine import Learner, Update
     from fixbench.solvers.nashq import NashQConfig
 
@@ -151,13 +152,8 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
                 torch.from_numpy(rng.random((n, nb)).astype(np.float32)))
 
     def median_ms(fn, k=repeat):
-        fn()
-        times = []
-        for _ in range(k):
-            t = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t)
-        return 1e3 * float(np.median(times))
+        fn()  # warm-up: compilation and first-touch of memory are no part of the figure
+        return 1e3 * median_time(fn, k)
 
     batches = [batch() for _ in range(64)]
     it = iter(range(10**9))

@@ -21,7 +21,8 @@ from fixbench.cases.oracle import Oracle
 from fixbench.cases.problem import load_problem
 
 
-def _median_time(fn, repeat: int) -> float:
+def median_time(fn, repeat: int) -> float:
+    """Median wall seconds of ``repeat`` calls of ``fn`` (one at a time, no warm-up call)."""
     times = []
     for _ in range(repeat):
         t = time.perf_counter()
@@ -49,9 +50,9 @@ def run_perf(case: str = "wing_panel", batch: int = 200_000, single: int = 2000,
     oracle.evaluate(task, random_layouts(2))  # compile the kernel before timing
     singles = random_layouts(single)
     it = iter(singles)
-    t_single = _median_time(lambda: oracle.evaluate(task, next(it)[None, :]), single)
+    t_single = median_time(lambda: oracle.evaluate(task, next(it)[None, :]), single)
     lay = random_layouts(direct)[0]
-    t_direct = _median_time(lambda: model.solve_direct(task, problem.candidates[lay], reassemble=True),
+    t_direct = median_time(lambda: model.solve_direct(task, problem.candidates[lay], reassemble=True),
                             direct)
     many = random_layouts(batch)
     t = time.perf_counter()
