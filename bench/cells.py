@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.matrix import Cell, task_subset
+from fixbench.bench.provenance import provenance
 from fixbench.bench.store import SCHEMA_VERSION, TRACE_COLUMNS
 from fixbench.cases.problem import Problem, cached_problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
@@ -147,6 +148,18 @@ def metrics(result, reference: dict | None) -> dict:
     return out
 
 
+def policy_columns(result, reference: dict | None) -> dict:
+    """The second figure of a planner that returns a policy (``PlanResult.policy_*``): its layouts'
+    objective and regret, beside the incumbents' (the scoring rule: ``fixbench.solvers.base``)."""
+    if result.policy_max_deformation is None:
+        return {"policy_objective_m": math.nan, "policy_relative_regret": math.nan}
+    pol = result.policy_objective
+    ref = metrics(result, reference).get("reference_objective_m", math.nan)
+    return {"policy_objective_m": pol, "policy_relative_regret": pol / ref - 1 if ref == ref else math.nan,
+            "policy_per_task_m": json.dumps(result.policy_max_deformation.tolist()),
+            "policy_layouts": json.dumps(result.policy_layouts.tolist())}
+
+
 def base_row(cell: Cell) -> dict:
     return {"schema": SCHEMA_VERSION, "cell": cell.id, "planner": cell.planner, "config": json.dumps(dict(cell.config)),
             "label": cell.label, "case": cell.case, "agents": cell.agents, "mode": cell.mode,
@@ -182,6 +195,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
                    objective_m=res.objective, mean_reward=float(res.reward.mean()),
                    mean_reward_bell=float(res.reward_bell.mean()),
                    layouts=json.dumps(res.layouts.tolist()),
+                   **policy_columns(res, reference),
                    info=json.dumps({k: v for k, v in res.info.items() if not _is_curve(v)}, default=str),
                    **metrics(res, reference))
         trace = pd.DataFrame(res.trace, columns=list(TRACE_COLUMNS)).to_dict("list")
@@ -191,6 +205,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
         row["info"] = json.dumps({"traceback": traceback.format_exc(limit=4)})
     row["wall_s"] = time.perf_counter() - t0
     row["cpu_s"] = time.process_time() - c0
+    row["provenance"] = json.dumps(provenance())
     return {"row": row, "trace": trace, "curves": curves}
 
 

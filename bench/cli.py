@@ -14,7 +14,7 @@ import click
 import numpy as np
 
 from fixbench import __version__
-from fixbench.cases.errors import FixbenchError
+from fixbench.cases.errors import CaseError, FixbenchError
 
 
 def _problem(case: str, material: str | None, agents: int | None = None, fixtures_per_agent: int | None = None):
@@ -100,7 +100,8 @@ def _pads_text(eff) -> str:
 @click.option("--material", help="Material name (default: the case's).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG file to write.")
 def show(case: str, material: str | None, out: Path | None) -> None:
-    """Picture of CASE: part, mesh, candidates coloured by agent, supports, tasks."""
+    """Picture of CASE: part, mesh, candidates coloured by agent, supports, tasks; and whether its
+    Gaussian reward widths give random layouts a reward other than 0 or 1 (a warning if not)."""
     from fixbench.bench.plots import show_case
 
     problem = _problem(case, material)
@@ -109,6 +110,26 @@ def show(case: str, material: str | None, out: Path | None) -> None:
     click.echo(f"{problem.name}: {n} fixture candidates"
                + (f" ({dropped} grid points outside the part or inside its holes dropped)" if dropped else ""))
     click.echo(f"wrote {path}")
+    share, sx, sz = _reward_check(problem)
+    click.echo(f"Gaussian reward (sigma_x {sx * 1e6:g} um, sigma_z {sz * 1e6:g} um): {share:.0%} of random layouts "
+               "at 0 or 1")
+    if share > 0.5:
+        click.echo(f"warning: {problem.spec.source}: [reward] widths are degenerate for this part: {share:.0%} of "
+                   "random layouts get a Gaussian reward below 0.001 or above 0.999; the learners' default reward "
+                   "('scaled') does not use them, a 'gaussian' run would learn nothing", err=True)
+
+
+def _reward_check(problem, n: int = 64, tasks: int = 4) -> tuple[float, float, float]:
+    """Share of uniform random layouts (``n`` on ``tasks`` tasks spread over the job, uncounted) whose
+    Gaussian reward is degenerate (below 0.001 or above 0.999), and the widths."""
+    from fixbench.cases.rewards import degenerate_share
+    from fixbench.solvers.base import random_layouts
+
+    rng = np.random.default_rng(0)
+    ids = np.unique(np.linspace(0, problem.n_tasks - 1, min(tasks, problem.n_tasks)).round().astype(int))
+    rewards = [problem.deformation(problem.measure(int(t), random_layouts(problem, rng, n))).reward_gaussian
+               for t in ids]
+    return (degenerate_share(np.concatenate(rewards)), *problem.spec.reward_sigma)
 
 
 def _parse_point(text: str) -> tuple[float, float]:
@@ -317,6 +338,31 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
                + (f", {summary['damaged_moved']} damaged rows moved to {out}/damaged and rerun"
                   if "damaged_moved" in summary else "")
                + f"; results in {out}")
+
+
+@cli.command()
+@click.argument("planner")
+@click.option("--trials", type=int, default=20, show_default=True,
+              help="Trials (the same number for every planner: the declared tuning budget).")
+@click.option("--cases", default=",".join(("wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small")),
+              show_default=True, help="Tuning cases, comma-separated (*_small only: never a reported problem).")
+@click.option("--seeds", default="0", show_default=True, help="Seeds of each trial's runs, comma-separated.")
+@click.option("--samples-per-task", type=int, default=100, show_default=True)
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the tuned [[planners]] entry (a matrix fragment) to this file.")
+def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
+    """Tune PLANNER's tunable config fields with Optuna on the *_small cases (bench/tune.py)."""
+    from fixbench.bench.tune import matrix_entry, tune, write_entry
+
+    try:
+        seed_list = tuple(int(s) for s in seeds.split(",") if s.strip())
+    except ValueError:
+        raise CaseError("--seeds", "", f"'{seeds}' is not a comma-separated list of integers") from None
+    result = tune(planner, trials, tuple(c.strip() for c in cases.split(",") if c.strip()), seed_list,
+                  samples_per_task, echo=lambda m: click.echo(m, err=True))
+    if out:
+        write_entry(result, out)
+    click.echo(matrix_entry(result), nl=False)
 
 
 @cli.command()

@@ -10,6 +10,11 @@
     improvement_table   rliable's probability of improvement P(X < Y) between every ordered pair of planners
     versus_best_table   P(X < best) of every planner against the one ranked first, per column of the main
                         table (the README's second table: can anything beat the best?)
+    policy_table        the learners' second figure: their greedy policy's regret beside the incumbents'
+
+Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each planner's incumbent
+(the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
+a learner's policy is never in the ranking, only in ``policy_table``.
 
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
@@ -274,6 +279,40 @@ def versus_best_table(rows: pd.DataFrame, main: pd.DataFrame,
             rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi, f"{name}_cells": f"{len(x)} vs {len(y)}"})
         recs.append(rec)
     return pd.DataFrame(recs), best
+
+
+def policy_table(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per planner label with a policy figure (a learner) and main-table column of a per-task track: the
+    mean relative regret (%) of its incumbents (what the ranking uses) and of its greedy policy's layouts,
+    each with a 95 % CI over the same cells (columns ``<name>``, ``<name>_lo``, ``<name>_hi`` and
+    ``<name> policy``...)."""
+    scored = _scored(rows)
+    if "policy_relative_regret" not in scored:
+        return pd.DataFrame()
+    scored = scored.assign(policy_pct=pd.to_numeric(scored["policy_relative_regret"], errors="coerce") * 100)
+    scored = scored[np.isfinite(scored["policy_pct"]) & (scored["mode"] != "held-out")]
+    columns = [(n, c, m) for n, c, m in main_columns(rows) if m != "held-out"]
+    recs = []
+    for label in sorted(scored["label"].unique()):
+        rec = {"planner": label}
+        for name, case, mode in columns:
+            pick = (scored["label"] == label) & (scored["case"] == case)
+            if mode is not None:
+                pick &= scored["mode"] == mode
+            for col, key in ((name, "regret_pct"), (f"{name} policy", "policy_pct")):
+                p, lo, hi = mean_ci(scored.loc[pick, key])
+                rec.update({col: p, f"{col}_lo": lo, f"{col}_hi": hi})
+        recs.append(rec)
+    return pd.DataFrame(recs)
+
+
+def show_policy(table: pd.DataFrame) -> pd.DataFrame:
+    """The policy table formatted like the main table: ``mean [lo, hi]`` per column."""
+    out = pd.DataFrame({"planner": table["planner"]})
+    for name in [c for c in table.columns if c != "planner" and not c.endswith(("_lo", "_hi"))]:
+        out[name.replace(" policy", ", policy") if name.endswith(" policy") else f"{name}, incumbent"] = \
+            ci_column(table, name)
+    return out
 
 
 def show_versus_best(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:

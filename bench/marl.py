@@ -42,6 +42,9 @@ from fixbench.bench.plots import save_png
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import case_names
 
+#: the seed's protocol: its Gaussian reward with the case's widths (the learners' default is 'scaled')
+SEED_REWARD = "gaussian"
+
 
 def _learner_runs(info_or_results) -> dict[str, list[dict]]:
     """Figure 4's input (:func:`fixbench.bench.figures.learner_runs`) from one run or a dict {label: run},
@@ -94,7 +97,8 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
     problem = load_problem(case, agents=agents)
     setup = prepare(problem)
     t = time.perf_counter()
-    res = get(planner)(episodes=episodes, threads=threads, device=device).solve(problem, None, seed=seed)
+    res = get(planner)(episodes=episodes, threads=threads, device=device,
+                       reward=SEED_REWARD).solve(problem, None, seed=seed)
     wall = time.perf_counter() - t
     i = res.info
     if figures:
@@ -214,7 +218,8 @@ def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list
             opt = _enumerate(problem)
         for name in planners:
             t = time.perf_counter()
-            res = get(name)(episodes=episodes, optima=tuple(float(x) for x in opt)).solve(problem, None, seed=seed)
+            res = get(name)(episodes=episodes, optima=tuple(float(x) for x in opt),
+                            reward=SEED_REWARD).solve(problem, None, seed=seed)
             rows.append({"case": case, "planner": name, "agents": problem.n_agents, "tasks": problem.n_tasks,
                          "samples": res.samples, "optimum_mean_m": float(opt.mean()),
                          "planner_mean_m": float(res.max_deformation.mean()),
@@ -242,7 +247,8 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", fraction: float = 
     problem = load_problem(case)
     prepare(problem)
     t = time.perf_counter()
-    res = get(planner)(episodes=episodes, train_fraction=fraction, **planner_config).solve(problem, None, seed=seed)
+    res = get(planner)(episodes=episodes, train_fraction=fraction,
+                       **{"reward": SEED_REWARD, **planner_config}).solve(problem, None, seed=seed)
     held = np.asarray(res.info["held_out_tasks"], dtype=int)
     train = np.asarray(res.info["train_tasks"], dtype=int)
     runs = [{"planner": planner, "samples_per_held_out_task": 0, "samples": res.samples,
@@ -311,7 +317,8 @@ def figure4_cmd(case: str, planner: str, agents: str, episodes: int, seed: int, 
     for n in [int(x) for x in agents.split(",")]:
         problem = load_problem(case, agents=n)
         prepare(problem)
-        results[f"{planner} N={n}"] = get(planner)(episodes=episodes).solve(problem, None, seed=seed)
+        results[f"{planner} N={n}"] = get(planner)(episodes=episodes,
+                                                   reward=SEED_REWARD).solve(problem, None, seed=seed)
     for p in figure4(results, out):
         print(f"wrote {p}")
 

@@ -34,6 +34,7 @@ alone yields ``best-known``.
 from __future__ import annotations
 
 import datetime
+import math
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -239,6 +240,8 @@ def update(run_dir, echo=print, folder=None) -> dict:
             continue
         claims: dict[int, list] = {}  # task -> [(claimed u, layout, row)]
         for _, row in group.iterrows():
+            if not isinstance(row["layouts"], str):  # a row rescored from its trace: no layouts to offer
+                continue
             u, layouts = json.loads(row["per_task_m"]), json.loads(row["layouts"])
             ids = task_subset(ref["n_tasks"], len(u))
             for k, t in enumerate(ids):
@@ -278,7 +281,7 @@ class _Scored:
         import json
 
         self.max_deformation = np.asarray(json.loads(row["per_task_m"]), dtype=float)
-        self.layouts = np.asarray(json.loads(row["layouts"]), dtype=np.int64)
+        self.layouts = self.max_deformation[:, None]  # metrics reads only its shape: (tasks, 1)
         self.mode = "per-task" if row["mode"] == "held-out" else row["mode"]
         n, k = len(self.max_deformation), row.get("heldout_every")
         self.held_out = None
@@ -324,18 +327,50 @@ def rescore(run_dir, echo=print) -> int:
         fresh[_key_of(ref)] = ref
     n = 0
     for cid, row in rows.items():
-        ref = fresh.get(_key_of(row))
-        if ref is None or row.get("error") or not row.get("per_task_m"):
+        if row.get("error") or not row.get("per_task_m"):
             continue
         tp = Path(run_dir) / "traces" / f"{cid}.parquet"
         trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
-        m = metrics(_Scored(row, trace), ref)
-        if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in REFERENCE_COLUMNS):
-            row.update({k: m[k] for k in REFERENCE_COLUMNS})
+        ruled = apply_scoring_rule(row, trace)
+        ref = fresh.get(_key_of(row))
+        m = metrics(_Scored(row, trace), ref) if ref is not None else {}
+        if ref is not None and ruled:
+            row.update(policy_relative_regret=row["policy_objective_m"] / m["reference_objective_m"] - 1)
+        if ruled or any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in m
+                        if k in REFERENCE_COLUMNS):
+            row.update({k: m[k] for k in REFERENCE_COLUMNS if k in m})
             store.rewrite(row)
             n += 1
     echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
     return n
+
+
+def apply_scoring_rule(row: dict, trace: np.ndarray) -> bool:
+    """Bring a per-task row made before the scoring rule (docs/protocol.md#scoring; such a row has no
+    ``policy_objective_m``) under it: where its trace's best on a task (the incumbent's value) is below
+    the value the row was scored by (a learner scored by its policy), the policy's values and layouts
+    move to the ``policy_*`` columns and the row is scored by the incumbents' values. Their layouts
+    were not recorded: ``layouts`` becomes null, and the rewards of the incumbents unknown (NaN).
+    Returns whether the row changed (rows of the other planners, already scored by their incumbents,
+    only gain an empty policy figure)."""
+    import json
+
+    if "policy_objective_m" in row or row.get("mode") != "per-task":
+        return False
+    u = np.asarray(json.loads(row["per_task_m"]), dtype=float)
+    best = u.copy()
+    for t in np.unique(trace[:, 0]).astype(int) if len(trace) else ():
+        if 0 <= t < len(u):
+            best[t] = trace[trace[:, 0] == t, 3].min()
+    if not (best < u * (1 - 1e-12)).any():
+        row.update(policy_objective_m=math.nan, policy_relative_regret=math.nan)
+        return True
+    row.update(policy_objective_m=float(u.mean()), policy_per_task_m=row["per_task_m"],
+               policy_layouts=row["layouts"], layouts=None, per_task_m=json.dumps(best.tolist()),
+               mean_max_deformation_m=float(best.mean()), worst_max_deformation_m=float(best.max()),
+               best_max_deformation_m=float(best.min()), objective_m=float(best.mean()),
+               mean_reward=math.nan, mean_reward_bell=math.nan, reference_regret=math.nan)
+    return True
 
 
 def _key_of(rec: dict) -> tuple:

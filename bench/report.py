@@ -41,9 +41,11 @@ from fixbench.bench.comparison import (  # noqa: E402
     improvement_table,
     main_columns,
     main_table,
+    policy_table,
     show_heldout,
     show_improvement,
     show_main,
+    show_policy,
     show_sweep,
     show_versus_best,
     sweep_table,
@@ -62,6 +64,7 @@ from fixbench.bench.figures import (  # noqa: E402
     sweep_figure,
     violin_figure,
 )
+from fixbench.bench.provenance import host_key  # noqa: E402
 from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
 from fixbench.bench.store import load_curves, load_results, load_traces  # noqa: E402
 from fixbench.bench.tables import (  # noqa: E402
@@ -180,10 +183,20 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
     w.table("main", table, show_main(table, [name for name, _, _ in main_columns(rows)]),
             "Main table: relative regret against the reference (%, mean over every successful cell of the "
             "planner on the case (and mode, when the run has several; held-out cells are scored on the "
-            f"held-out tasks) with a 95 % percentile-bootstrap CI, {N_BOOT} resamples, fixed seed) and "
+            f"held-out tasks) with a 95 % percentile-bootstrap CI, {N_BOOT} resamples, fixed seed; one "
+            "scoring rule a track, every planner alike: per-task and shared cells by the planner's "
+            "incumbent, the best layout it evaluated on each task, held-out cells by the layouts it returns "
+            "on the held-out tasks, with zero samples there; a learner's policy is in the next table) and "
             "the mean rank over problems (case x material x seed x agents x tasks x mode x budget or samples "
             "a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its own "
             "budget competes at every budget); sorted by mean rank.")
+    policy = policy_table(rows)
+    if not policy.empty:
+        w.table("policy", policy, show_policy(policy),
+                "Learners' second figure: relative regret (%) of their greedy policy's layouts (what the "
+                "trained networks play with no more samples) beside that of their incumbents (the best "
+                "layout they evaluated on each task, what the main table ranks), over the same per-task "
+                "cells, with a 95 % percentile-bootstrap CI. Never in the ranking.")
     if (~table["planner"].isin([REFERENCE_PLANNER])).sum() < 2:
         return
     versus, best = versus_best_table(rows, table, exclude=(REFERENCE_PLANNER,))
@@ -263,7 +276,7 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
     w.md += [f"# fixbench report: {name}", "",
              f"Run directory `{run_dir}`: {len(rows)} cells ({int((~rows['ok']).sum())} failed), "
              f"cases {', '.join(map(str, cases)) or '-'}, planners {', '.join(labels) or '-'}, "
-             f"{len(refs)} regret reference(s).", ""]
+             f"{len(refs)} regret reference(s).", ""] + _hosts(rows)
     sweep, profile = _table_sections(w, rows, refs)
     _figure_sections(w, run_dir, rows, refs, colors, sweep, profile, fields)
     if w.notes:
@@ -271,6 +284,20 @@ def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool
     path = out / "report.md"
     path.write_text("\n".join(w.md))
     return {"report": path, "tables": w.tables, "figures": w.figures, "notes": w.notes}
+
+
+def _hosts(rows: pd.DataFrame) -> list[str]:
+    """Report lines: the hosts the run's rows were made on (their provenance), with the cells of each."""
+    rec = [json.loads(v) for v in rows.get("provenance", pd.Series(dtype=object)) if isinstance(v, str)]
+    if not rec:
+        return [f"Hosts: not recorded ({len(rows)} cells made before rows carried their provenance).", ""]
+    hosts = pd.Series([host_key(r) for r in rec]).value_counts()
+    versions = pd.Series([f"fixbench {r.get('fixbench')}" + (f" ({r['commit'][:12]})" if r.get("commit") else "")
+                          for r in rec]).value_counts()
+    lines = ["Hosts (cells): " + "; ".join(f"{h}: {n}" for h, n in hosts.items())
+             + (f"; not recorded: {len(rows) - len(rec)}" if len(rows) > len(rec) else "") + ".",
+             "Code (cells): " + "; ".join(f"{v}: {n}" for v, n in versions.items()) + ".", ""]
+    return lines
 
 
 def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.DataFrame, tuple | None]:

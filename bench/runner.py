@@ -88,15 +88,36 @@ class _RunOptions:
     plain_every: float
 
 
+def _check_extends(root: Path, saved: Path, cells: list) -> None:
+    """A matrix may extend the one a run directory holds: add planner entries, seeds, cases or any
+    cell, so long as every cell of the stored matrix is still one of its cells with the same settings
+    (a cell's id hashes them all: planner, config, label, case, material, agents, tasks, mode, budget,
+    seed). Otherwise one line naming the first stored cell it drops or changes."""
+    try:
+        old = load_matrix(saved).cells()
+    except CaseError as exc:
+        raise CaseError(str(root), "", f"holds the results of a matrix that no longer loads ({exc}); "
+                        "choose another --out") from None
+    ids = {c.id for c in cells}
+    for c in old:
+        if c.id not in ids:
+            what = (f"{c.label or c.planner} {dict(c.config) or ''} on {c.case}/{c.material}, {c.mode}, seed "
+                    f"{c.seed}, budget {c.budget if c.samples_per_task is None else f'{c.samples_per_task} a task'}")
+            raise CaseError(str(root), "", f"holds the results of a different matrix: its cell {what} is not in "
+                            "this one with the same settings (a matrix may only add cells to a run); choose "
+                            "another --out")
+
+
 def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOptions) -> dict:
     """The run itself, with the run directory's lock held."""
     saved = store.root / "matrix.toml"
+    extends = False
     if saved.exists() and saved.read_text(encoding="utf-8") != text:
         if saved.stat().st_size == 0 and not any((store.root / "rows").glob("*.json")):
             saved.unlink()  # an empty copy left by a failed first write (e.g. a full disk): start again
         else:
-            raise CaseError(str(store.root), "", "holds the results of a different matrix (its matrix.toml "
-                            "differs); choose another --out")
+            _check_extends(store.root, saved, cells)
+            extends = True
     done = store.finished(move_damaged=True)
     pending = [c for c in cells if c.id not in done or (opts.retry_failed and done[c.id].get("error"))]
     todo = [c for c in pending if selected(c)]
@@ -107,8 +128,8 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
         summary["deferred"] = len(pending) - len(todo)  # left for a later run (not selected by ``only``)
     if not todo:
         return summary
-    if not saved.exists():
-        write_text_atomic(saved, text)
+    if not saved.exists() or extends:
+        write_text_atomic(saved, text)  # an extended run's matrix is the new one, a superset of the old
 
     modes = tuple(sorted({c.mode for c in cells}))
     references: dict[str, dict] = {}

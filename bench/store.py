@@ -61,7 +61,8 @@ ROW_SCHEMA = {
     "worst_max_deformation_m": "worst task's max |u|",
     "best_max_deformation_m": "best task's max |u|",
     "objective_m": "mean (per-task; over held-out tasks in held-out mode) or worst (shared) max |u|",
-    "per_task_m": "max |u| of the planner's layout on each task (JSON list, metres)",
+    "per_task_m": "max |u| of the layout each task is scored by (JSON list, metres; the scoring rule: "
+                  "docs/protocol.md#scoring)",
     "mean_reward": "mean Gaussian reward of the layouts (seed paper)",
     "mean_reward_bell": "mean bell reward (reference code)",
     "reference_objective_m": "the regret reference's objective (optimum or best known)",
@@ -77,8 +78,17 @@ ROW_SCHEMA = {
     "samples": "samples the planner spent",
     "setup_s": "problem set-up before the planner ran: model, factorisation, compliance data (no samples)",
     "wall_s": "wall time of the planner's run (set-up excluded)", "cpu_s": "CPU time of the planner's run",
-    "layouts": "the planner's layout per task (JSON; action indices: the candidates, with one pad a robot)",
+    "layouts": "the layout each task is scored by (JSON; action indices: the candidates, with one pad a robot): "
+               "the planner's incumbent, the best layout it evaluated there, else the layout it returned; "
+               "null in a row made before incumbents were recorded and rescored from its trace",
+    "policy_objective_m": "a learner's second figure: the objective of its greedy policy's layouts (NaN: none)",
+    "policy_relative_regret": "policy_objective_m / reference_objective_m - 1",
+    "policy_per_task_m": "max |u| of the policy's layout on each task (JSON list, metres)",
+    "policy_layouts": "the policy's layout per task (JSON)",
     "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
+    "provenance": "where and with what the row was made (JSON): fixbench version and source commit, Python, "
+                  "library versions, numpy's BLAS, CPU model and cores, threads, environment switches "
+                  "(bench/provenance.py)",
 }
 
 

@@ -11,6 +11,12 @@ seeded generator, calls :meth:`Planner.plan`, checks the layouts it returns, and
 score (true max deformation of each returned layout) is the benchmark's measurement, taken on the
 uncounted oracle after the planner has finished: the planner never sees it.
 
+One scoring rule (docs/protocol.md#scoring): on every task it evaluated, a planner is scored by its
+*incumbent*, the best layout it evaluated there (what an engineer would use: the best layout the FEA
+already confirmed), whatever layout it returns; on a task it never evaluated (a held-out task, a
+zero-sample planner) by the layout it returns. A learner returns its greedy policy's layouts: they
+are scored beside the incumbents as a second figure (``PlanResult.policy_*``), never in the objective.
+
 Modes: ``per-task`` (reconfigurable fixtures: one layout per task, each judged on its task) and
 ``shared`` (one layout for every task, judged by its worst task).
 """
@@ -42,7 +48,13 @@ class PlannerError(FixbenchError):
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Base of every planner's configuration; subclasses add documented fields."""
+    """Base of every planner's configuration; subclasses add documented fields.
+
+    ``tunable`` declares the fields ``fixbench tune`` may search and how: field -> ("int", lo, hi),
+    ("float", lo, hi), ("log", lo, hi) or ("choice", [values]) (bench/tune.py)."""
+
+    tunable: ClassVar[dict[str, tuple]] = {
+    }
 
     def hash(self) -> str:
         """Short stable hash of the config (for result rows)."""
@@ -137,6 +149,9 @@ class PlanResult:
     reward_bell: np.ndarray | None = None  # (n_tasks,) the reference code's bell reward
     held_out: np.ndarray | None = None  # held-out track: the tasks acted on without samples
     pads: np.ndarray | None = None  # (n_tasks, n_agents * m) candidates the layouts place (-1: none)
+    policy_layouts: np.ndarray | None = None  # (n_tasks, n_agents) what the planner returned, where that
+    #: is not its incumbent (a learner's greedy policy); scored beside it, never in the objective
+    policy_max_deformation: np.ndarray | None = None  # (n_tasks,) metres, of policy_layouts
 
     @property
     def scored_tasks(self) -> np.ndarray:
@@ -146,7 +161,15 @@ class PlanResult:
     @property
     def objective(self) -> float:
         """Mean over tasks (per-task; over the held-out tasks in that track) or worst task (shared)."""
-        u = self.max_deformation[self.scored_tasks]
+        return self._objective(self.max_deformation)
+
+    @property
+    def policy_objective(self) -> float | None:
+        """The objective of the returned (policy) layouts, where they are not the incumbents."""
+        return None if self.policy_max_deformation is None else self._objective(self.policy_max_deformation)
+
+    def _objective(self, per_task: np.ndarray) -> float:
+        u = per_task[self.scored_tasks]
         return float(u.max() if self.mode == "shared" else u.mean())
 
     def summary(self) -> dict[str, Any]:
@@ -156,7 +179,8 @@ class PlanResult:
                 "objective_m": self.objective,
                 "mean_max_deformation_m": float(self.max_deformation.mean()),
                 "worst_max_deformation_m": float(self.max_deformation.max()),
-                "mean_reward": float(self.reward.mean()), "config": self.config, "info": self.info,
+                "mean_reward": float(self.reward.mean()), "policy_objective_m": self.policy_objective,
+                "config": self.config, "info": self.info,
                 "per_task": [{"task": t, "layout": self.layouts[t].tolist(),
                               **({} if self.pads is None else {"pads": self.pads[t].tolist()}),
                               "max_deformation_m": float(self.max_deformation[t]),
@@ -170,6 +194,9 @@ class Planner(ABC):
     description: ClassVar[str] = ""
     Config: ClassVar[type[PlannerConfig]] = PlannerConfig
     modes: ClassVar[tuple[str, ...]] = MODES
+    #: True for a learner whose returned layouts are its greedy policy's (not its incumbents): the
+    #: policy is then always scored as the second figure ``policy``
+    returns_policy: ClassVar[bool] = False
 
     def __init__(self, config: PlannerConfig | None = None, **overrides: Any):
         config = config if config is not None else self.Config()
@@ -213,16 +240,34 @@ class Planner(ABC):
             layouts, filled = fill_held_out(problem, layouts, ev.tasks)
             if filled:
                 info = {**info, "held_out_from": "nearest training task's best layout"}
-        layouts = problem.check_layouts(layouts)
-        if mode == "shared" and not (layouts == layouts[0]).all():
+        returned = problem.check_layouts(layouts)
+        if mode == "shared" and not (returned == returned[0]).all():
             raise PlannerError(f"planner '{self.name}' returned different layouts in shared mode")
-        maxima = np.vstack([problem.measure(t, layouts[t:t + 1]) for t in range(problem.n_tasks)])
-        scored = problem.deformation(maxima)
+        layouts = incumbent_layouts(ev, returned, mode)
+        scored = _measure(problem, layouts)
+        policy = policy_u = None
+        if self.returns_policy or not np.array_equal(layouts, returned):
+            policy, policy_u = returned, _measure(problem, returned).max_u
         return PlanResult(self.name, _config_dict(self.config), self.config.hash(), problem.name,
                           problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
                           scored.max_u, scored.reward_gaussian,
                           np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell, held,
-                          None if problem.spec.effector.simple else problem.pads(layouts))
+                          None if problem.spec.effector.simple else problem.pads(layouts), policy, policy_u)
+
+
+def incumbent_layouts(ev: TracedEvaluator, returned: np.ndarray, mode: str) -> np.ndarray:
+    """The layouts a run is scored by (the scoring rule of the module docstring): per task, the best
+    layout evaluated there, else the returned one; in shared mode the best shared layout evaluated, else
+    the returned one."""
+    if mode == "shared":
+        return returned if ev.shared_layout is None else np.tile(ev.shared_layout, (len(returned), 1))
+    seen = np.isfinite(ev.best)
+    return np.where(seen[:, None], ev.best_layout, returned)
+
+
+def _measure(problem: Problem, layouts: np.ndarray) -> Deformation:
+    """Deformation of each task's layout on the uncounted oracle (the benchmark's measurement)."""
+    return problem.deformation(np.vstack([problem.measure(t, layouts[t:t + 1]) for t in range(problem.n_tasks)]))
 
 
 def _config_dict(config: PlannerConfig) -> dict:

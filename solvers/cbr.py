@@ -68,6 +68,7 @@ import json
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -87,6 +88,14 @@ FORMAT = 1
 
 @dataclass(frozen=True)
 class CBRConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "k": ("int", 1, 8),
+        "retained_k": ("int", 0, 6),
+        "part_weight": ("log", 0.1, 10.0),
+        "material_weight": ("log", 0.02, 2.0),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     library: str = ""
     """Path of the case library (JSON from build_library; built there from ``bootstrap`` if missing);
     empty: built from ``bootstrap`` in memory for this process, never written."""

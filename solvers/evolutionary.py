@@ -59,6 +59,7 @@ from __future__ import annotations
 from abc import abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from pymoo.algorithms.soo.nonconvex.ga import GA
@@ -195,6 +196,15 @@ class _Seeded(Sampling):
 
 @dataclass(frozen=True)
 class GAConfig(EvolutionConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "pop_size": ("int", 20, 400),
+        "crossover_eta": ("log", 1.0, 20.0),
+        "mutation_eta": ("log", 1.0, 20.0),
+        "soft_power": ("float", 1.0, 8.0),
+        "transfer": ("int", 0, 5),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     pop_size: int = 200
     """Population size; also the offspring per generation (layouts per counted call)."""
 
@@ -238,6 +248,16 @@ class GeneticPlanner(_EvolutionaryPlanner):
 
 @dataclass(frozen=True)
 class PSOConfig(EvolutionConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "pop_size": ("int", 20, 400),
+        "w": ("float", 0.3, 1.0),
+        "c1": ("float", 0.5, 3.0),
+        "c2": ("float", 0.5, 3.0),
+        "soft_power": ("float", 1.0, 8.0),
+        "transfer": ("int", 0, 5),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     pop_size: int = 200
     """Swarm size (particles); also the layouts per counted call."""
 

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -65,6 +66,13 @@ from fixbench.solvers.transfer import warm_layouts
 
 @dataclass(frozen=True)
 class GreedyConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "restarts": ("int", 4, 64),
+        "soft_power": ("float", 1.0, 8.0),
+        "transfer": ("int", 0, 5),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     restarts: int = 32
     """Most descents from random starts; fewer run when the budget is spent first."""
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -43,6 +44,15 @@ from fixbench.solvers.transfer import warm_layouts
 
 @dataclass(frozen=True)
 class LocalConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "neighbours": ("int", 2, 16),
+        "explore": ("int", 2, 16),
+        "starts": ("int", 4, 32),
+        "soft_power": ("float", 1.0, 8.0),
+        "transfer": ("int", 0, 5),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     neighbours: int = 8
     """First neighbourhood: each agent's candidates nearest its current pad; doubles when a round of
     all agents brings no improvement, up to the agent's whole set."""

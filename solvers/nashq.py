@@ -36,7 +36,9 @@ only; each agent acts on its own argmax.
 Budget: one sample per env step. The run trains for ``episodes`` passes over the training tasks, or,
 if the budget is smaller, for as many full episodes as fit (best effort; ``info["episodes_run"]``);
 if not even one episode fits, :class:`PlannerError`. The returned layouts are the greedy policy's
-(epsilon = 0, no samples) for every task, training tasks and held-out tasks alike.
+(epsilon = 0, no samples) for every task, training tasks and held-out tasks alike. Scored as every
+planner is (:mod:`fixbench.solvers.base`): by the best layout evaluated on each training task, the
+policy as the second figure ``policy``; on held-out tasks (no samples) by the policy.
 
 Regret (``info``): ``episode_regret_ref`` is the reference's N T r* - N sum(step rewards), with r* its
 stand-in for the optimal step reward, :data:`fixbench.cases.rewards.REFERENCE_OPTIMAL_REWARD` (0.7854);
@@ -50,6 +52,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numba
 import numpy as np
@@ -57,10 +60,13 @@ import torch
 
 from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
-from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
+from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from fixbench.solvers.marl_engine import Learner, Update
 from fixbench.solvers.registry import register
+
+#: the learners' rewards (docs/protocol.md#reward-functions)
+REWARDS = ("scaled", "gaussian", "bell")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -68,6 +74,15 @@ from fixbench.solvers.registry import register
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class NashQConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "lr": ("log", 1e-05, 0.001),
+        "eps_decay": ("log", 100.0, 10000.0),
+        "alpha": ("float", 0.3, 1.0),
+        "hidden": ("choice", [64, 128, 256]),
+        "batch": ("choice", [16, 32, 64]),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     episodes: int = 100
     """Passes over the training tasks (seed Table I: 100)."""
 
@@ -101,8 +116,13 @@ class NashQConfig(PlannerConfig):
     tau: float = 0.005
     """Soft target update: target <- tau policy + (1 - tau) target, after every update."""
 
-    reward: str = "gaussian"
-    """Shared reward: 'gaussian' (seed paper) or 'bell' (reference code)."""
+    reward: str = "scaled"
+    """Shared reward: 'scaled' (the standardised log deformation, scaled from the run's own first
+    samples: no width set by hand; :class:`fixbench.cases.rewards.LogScale`), 'gaussian' (seed paper,
+    the case's hand-set ``[reward]`` widths) or 'bell' (reference code)."""
+
+    scale_samples: int = 500
+    """'scaled' reward: the first samples whose ln u give its mean and spread (then frozen)."""
 
     max_sweeps: int = 10
     """nashq: most Gauss-Seidel best-response sweeps per joint action."""
@@ -151,12 +171,16 @@ class _QPlanner(Planner):
     Config = NashQConfig
     modes = ("per-task",)
     joint = True
+    returns_policy = True
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         t_start = time.perf_counter()
-        if cfg.reward not in ("gaussian", "bell"):
-            raise PlannerError(f"planner '{self.name}': reward must be 'gaussian' or 'bell'")
+        if cfg.reward not in REWARDS:
+            raise PlannerError(f"planner '{self.name}': reward must be one of {', '.join(REWARDS)}, "
+                               f"got '{cfg.reward}'")
+        if cfg.scale_samples < 2:
+            raise PlannerError(f"planner '{self.name}': scale_samples must be at least 2, got {cfg.scale_samples}")
         if cfg.device == "cuda" and not torch.cuda.is_available():
             raise PlannerError(f"planner '{self.name}': device 'cuda' asked but CUDA is not available")
         if cfg.device not in ("cpu", "cuda"):
@@ -247,7 +271,10 @@ class _QPlanner(Planner):
         t_setup = time.perf_counter() - t_setup
         L = Learner(problem, cfg, self.joint, device, gen)
         opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
-        env = FixtureEnv(problem, reward=cfg.reward, shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
+        # the scaled reward is the learner's own transform of the env's max_u (the env pays the Gaussian)
+        scale = LogScale(cfg.scale_samples) if cfg.reward == "scaled" else None
+        env = FixtureEnv(problem, reward="gaussian" if scale else cfg.reward, shuffle=cfg.shuffle,
+                         task_ids=ids, evaluator=ev)
         agents = env.possible_agents
 
         cap = min(cfg.capacity, steps_total)
@@ -281,6 +308,11 @@ class _QPlanner(Planner):
                 t2 = time.perf_counter()
                 r = rew[agents[0]]
                 info = infos[agents[0]]
+                stored = r  # what the replay keeps: the reward, or ln u for the scaled reward
+                if scale is not None:
+                    stored = math.log(info["max_u"])
+                    scale.add(stored)
+                    r = float(scale.reward(stored))
                 step_reward.append(r)
                 step_u.append(info["max_u"])
                 step_task.append(task)
@@ -288,12 +320,13 @@ class _QPlanner(Planner):
                 k = steps % cap
                 buf_task[k] = task
                 buf_act[k] = torch.from_numpy(act)
-                buf_rew[k] = r
+                buf_rew[k] = stored
                 steps += 1
                 size = min(steps, cap)
                 if size >= cfg.batch:
                     idx = torch.from_numpy(rng.integers(0, size, (n, cfg.batch))).to(device)
-                    loss = L.td_grad(buf_task[idx], buf_act[idx], buf_rew[idx], cfg.alpha)
+                    batch_r = buf_rew[idx] if scale is None else scale.reward(buf_rew[idx])
+                    loss = L.td_grad(buf_task[idx], buf_act[idx], batch_r, cfg.alpha)
                     opt.step()  # clip, AdamW, soft target update
                     loss_sum += loss
                     n_upd += 1

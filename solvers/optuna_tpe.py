@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import optuna
@@ -54,6 +55,13 @@ ENUMERATION_BATCH = 4096  # layouts a counted call when an allowance covers the 
 
 @dataclass(frozen=True)
 class OptunaConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "n_startup_trials": ("int", 5, 50),
+        "multivariate": ("choice", [True, False]),
+        "transfer": ("int", 0, 5),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     samples_per_task: int = 200
     """Layouts per task (per-task) or shared layouts (shared mode) when the budget is unlimited."""
 

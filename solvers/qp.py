@@ -66,6 +66,7 @@ whose pads hold the most force mass and polishes over the actions nearest to it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import cvxpy as cp
 import numpy as np
@@ -82,6 +83,13 @@ FIELDS = ("bending", "membrane")
 
 @dataclass(frozen=True)
 class QPConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "pool": ("int", 2, 10),
+        "field_weight": ("log", 0.1, 10.0),
+        "big_m": ("log", 0.3, 3.0),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
     big_m: float = 1.0
     """Force scale g_f as a multiple of the field's largest single-pad reaction."""
 

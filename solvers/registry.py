@@ -27,7 +27,9 @@ BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solver
            "ga": "fixbench.solvers.evolutionary", "pso": "fixbench.solvers.evolutionary",
            "qp": "fixbench.solvers.qp", "cbr": "fixbench.solvers.cbr",
            "nashq": "fixbench.solvers.nashq", "iql": "fixbench.solvers.nashq",
-           "optuna": "fixbench.solvers.optuna_tpe"}
+           "optuna": "fixbench.solvers.optuna_tpe", "rules": "fixbench.solvers.rules",
+           "surrogate-ts": "fixbench.solvers.surrogate",
+           "vdn": "fixbench.solvers.vdn"}
 _REGISTRY: dict[str, type[Planner]] = {}
 
 

@@ -98,6 +98,31 @@ def test_run_resume_and_schema(tmp_path):
     assert df["reference_proven"].all() and (df["relative_regret"] >= -1e-12).all()
     again = run_matrix(path, out, workers=1, progress=False)
     assert again["run"] == 0 and again["skipped"] == 8
+    import json
+
+    for text in df["provenance"]:  # where and with what each row was made
+        p = json.loads(text)
+        assert p["fixbench"] and p["python"] and p["libraries"]["numpy"] and p["cpu"] and p["cores"] >= 1
+        assert isinstance(p["env"], dict) and "numpy_blas" in p
+
+
+def test_a_matrix_that_adds_cells_extends_the_run_and_one_that_changes_a_cell_is_refused(tmp_path, capsys):
+    """Extend a run: added planner entries and seeds run alone there, the stored rows stay
+    byte-identical; a matrix that changes (or drops) a stored cell is refused in one line naming it."""
+    out = tmp_path / "run"
+    run_matrix(write(tmp_path, TINY), out, workers=1, progress=False)
+    before = {p.name: p.read_bytes() for p in (out / "rows").glob("*.json")}
+    more = TINY.replace('planners = ["random", "greedy"]', 'planners = ["random", "greedy", "local"]')
+    more = more.replace("seeds = [0, 1]", "seeds = [0, 1, 2]")
+    extended = run_matrix(write(tmp_path, more, "more.toml"), out, workers=1, progress=False)
+    assert extended == {"cells": 18, "skipped": 8, "run": 10, "failed": 0}
+    assert {p.name: p.read_bytes() for p in (out / "rows").glob("*.json") if p.name in before} == before
+    assert (out / "matrix.toml").read_text() == more
+    changed = more.replace("budget = 120", "budget = 100")
+    assert main(["run", str(write(tmp_path, changed, "changed.toml")), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds the results of a different matrix: its cell random" in err
+    assert "budget 120" in err and "only add cells" in err
 
 
 def test_kill_minus_nine_then_resume(tmp_path):

@@ -274,3 +274,19 @@ def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
     problem.check_layouts(r.layouts)
     assert r.samples == 9 and len(copies) > 1  # training steps' best responses and the greedy policy
     assert np.isfinite(r.info["td_loss"]).all()
+
+
+@pytest.mark.parametrize("name", ["nashq", "iql"])
+def test_a_learner_is_scored_by_its_incumbent_and_its_policy_beside_it(problem, name):
+    """The scoring rule: a learner whose policy layout is worse than one it evaluated on a task is
+    scored there by the latter; the policy is kept as the second figure, never in the objective."""
+    res = get(name)(**SMALL).solve(problem, None, seed=4)
+    trace = np.asarray(res.trace)
+    best_seen = np.array([trace[trace[:, 0] == t, 3].min() for t in range(problem.n_tasks)])
+    np.testing.assert_array_equal(res.max_deformation, best_seen)
+    assert res.policy_layouts is not None and res.policy_max_deformation is not None
+    worse = res.policy_max_deformation > res.max_deformation
+    assert worse.any()  # 3 episodes: on some task the policy has not found the best layout it evaluated
+    assert (res.layouts[worse] != res.policy_layouts[worse]).any(axis=1).all()
+    assert res.objective == res.max_deformation.mean()
+    assert res.policy_objective == res.policy_max_deformation.mean()

@@ -76,7 +76,8 @@ def test_every_planner_places_feasible_pads_within_its_budget(extra, name):
     first = get(name)(**quick).solve(p, 200, seed=3)
     for a, allowed in enumerate(p.action_sets):
         assert np.isin(first.layouts[:, a], allowed).all()
-    assert 0 < first.samples <= 200 and np.all(first.max_deformation > 0)
+    zero_sample = name == "rules"  # acts from fixturing rules alone
+    assert (first.samples == 0 if zero_sample else 0 < first.samples <= 200) and np.all(first.max_deformation > 0)
     again = get(name)(**quick).solve(p, 200, seed=3)
     np.testing.assert_array_equal(first.layouts, again.layouts)
 

@@ -7,6 +7,7 @@ clear error or a documented best effort: never a crash.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -59,17 +60,16 @@ def test_budget_too_small(problem, name):
         assert result.samples <= 1
 
 
-#: planners scored by their learned policy's action (the seed's protocol), not by the best layout
-#: their exploration happened to evaluate: the one exception to "never worse than the best seen"
-POLICY_PLANNERS = {"nashq", "iql"}
+#: planners that act from rules alone, with no sample (the floor the learners must clear)
+ZERO_SAMPLE = {"rules"}
 
 
 @pytest.mark.parametrize("per_task", [3, 10])
-@pytest.mark.parametrize("name", sorted(set(available()) - POLICY_PLANNERS))
+@pytest.mark.parametrize("name", sorted(available()))
 def test_tiny_budgets_are_spent_and_the_best_layout_seen_is_returned(name, per_task):
     """A few samples a task against 28 candidates an agent: a planner either refuses in one line
-    (exact, qp) or spends the whole budget and returns, on every task, a layout no worse than the
-    best it evaluated there."""
+    (exact, qp) or spends the whole budget and is scored, on every task, by a layout no worse than
+    the best it evaluated there (the scoring rule: learners included)."""
     small = Problem(load_case_spec("fan_small", n_agents=3).with_tasks([0, 5]))
     budget = per_task * small.n_tasks
     try:
@@ -77,7 +77,11 @@ def test_tiny_budgets_are_spent_and_the_best_layout_seen_is_returned(name, per_t
     except FixbenchError as exc:
         assert "\n" not in str(exc) and "budget" in str(exc)
         return
-    assert result.samples == budget
+    if name in ZERO_SAMPLE:
+        assert result.samples == 0 and len(result.trace) == 0
+        return
+    # a learner trains for whole episodes (3 here: its quick setting), the others spend the budget
+    assert result.samples <= budget if get(name).returns_policy else result.samples == budget
     trace = np.asarray(result.trace)
     for t in range(small.n_tasks):
         seen = trace[trace[:, 0] == t, 3]
@@ -132,8 +136,8 @@ def test_every_planner_is_documented():
     """A one-line description, and a docstring under every config field (cleanrl style)."""
     for name, cls in available().items():
         assert cls.description and "\n" not in cls.description, name
-        for field in cls.Config.__dataclass_fields__:
-            assert _has_field_doc(cls.Config, field), (name, field)
+        for field in dataclasses.fields(cls.Config):  # fields, not the ClassVar ``tunable``
+            assert _has_field_doc(cls.Config, field.name), (name, field.name)
 
 
 def _has_field_doc(config_cls, field: str) -> bool:

@@ -1,0 +1,362 @@
+"""VDN: value-decomposition networks for the multi-robot fixture planning game, in PyTorch.
+
+Reference: P. Sunehag, G. Lever, A. Gruslys, W. M. Czarnecki, V. Zambaldi, M. Jaderberg, M. Lanctot,
+N. Sonnerat, J. Z. Leibo, K. Tuyls, T. Graepel, "Value-Decomposition Networks For Cooperative
+Multi-Agent Learning", AAMAS 2018 (arXiv:1706.05296, 2017): the team's action value is the sum of the
+agents' values, Q_tot(s, a) = sum_i Q_i(s, a_i), trained end to end on the shared reward, each agent
+acting on its own Q_i; with parameter sharing (one network for all agents, an agent one-hot among its
+inputs), the paper's strongest variant. The cooperative MARL reference beside ``nashq`` / ``iql``.
+
+Read top to bottom (cleanrl style): hyper-parameters, the shared Q-network, the training loop on the
+PettingZoo env (:class:`fixbench.cases.env.FixtureEnv`), the greedy policy.
+
+The game (docs/protocol.md#the-game): each step shows every agent one task (its feature vector); each
+agent picks one action of its own set; the layout is evaluated once on the counted oracle (one sample
+per step) and every agent gets the same reward. One episode is one pass over the training tasks; an
+episode of the bandit is one step, so the target is the reward itself (no bootstrap, no target network).
+
+Design:
+
+- one network for every action of every agent (parameter sharing over pad coordinates):
+  Q_i(s, a) = MLP(task features of s, pad coordinates of action a, one-hot of agent i) -> a scalar.
+  Task features are min-max normalised over the problem's tasks; an action's pads' (x, y) are
+  normalised to the candidates' bounding box (a robot that places m pads: 2 m numbers, and m flags
+  "this pad is placed", a "no pad" sitting at its robot's candidates' centroid). Actions near each
+  other get near values before either was tried: what is learned on one candidate carries to its
+  neighbours, and from one agent to the others through the shared weights.
+- VDN: Q_tot(s, a) = sum_i Q_i(s, a_i), regressed (mean squared error) on the shared reward of the
+  one-step episode, from minibatches of a replay buffer, AdamW.
+- reward: the project's scaled reward (:class:`fixbench.cases.rewards.LogScale`, the standardised log
+  deformation, (mu - ln u) / sd, calibrated on the run's first ``scale_samples`` samples). The buffer
+  keeps ln u and every update rescales it with the statistics of that moment, as ``nashq`` does.
+- acting: each agent explores on its own with probability epsilon (a uniform random action of its
+  set), epsilon = end + (start - end) exp(-step / (eps_decay * run steps)); the greedy joint action is
+  every agent's own argmax, exact for VDN (the sum decomposes). One step scores every action of every
+  non-exploring agent in one batched forward pass (the wing panel: 3,333 rows).
+
+Budget: one sample per env step. The run trains for ``episodes`` passes over the training tasks, or,
+if the budget is smaller, for as many full episodes as fit (best effort, ``info["episodes_run"]``); if
+not even one fits, :class:`PlannerError`. The returned layouts are the greedy policy's (epsilon 0, no
+samples) on every task, training and held-out alike (``returns_policy``); the harness scores the run by
+its incumbents (the best layout evaluated on each training task) and reports the policy beside them;
+held-out tasks (no samples) are scored by the policy.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numba
+import numpy as np
+import torch
+from torch import nn
+
+from fixbench.cases.env import FixtureEnv
+from fixbench.cases.problem import Problem
+from fixbench.cases.rewards import LogScale
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from fixbench.solvers.nashq import train_ids
+from fixbench.solvers.registry import register
+
+
+# ---------------------------------------------------------------------------------------------
+# hyper-parameters
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class VDNConfig(PlannerConfig):
+    tunable: ClassVar[dict[str, tuple]] = {
+        "lr": ("log", 3e-4, 1e-2),
+        "eps_decay": ("log", 0.05, 0.5),
+        "hidden": ("choice", [64, 128, 256]),
+        "batch": ("choice", [32, 64, 128]),
+    }
+    """What ``fixbench tune`` searches (bench/tune.py)."""
+
+    episodes: int = 100
+    """Passes over the training tasks (as nashq / iql: 100, i.e. 100 samples a task)."""
+
+    hidden: int = 128
+    """Width of each hidden layer of the shared Q-network."""
+
+    layers: int = 2
+    """Hidden layers (ReLU) of the shared Q-network."""
+
+    lr: float = 3e-3
+    """AdamW learning rate."""
+
+    weight_decay: float = 1e-4
+    """AdamW decoupled weight decay."""
+
+    batch: int = 64
+    """Replay minibatch (joint transitions) per update; updates start once the buffer holds this many."""
+
+    update_every: int = 1
+    """One update every this many env steps."""
+
+    capacity: int = 1_000_000
+    """Replay capacity (transitions); never more is allocated than the run has steps."""
+
+    eps_start: float = 0.9
+    """Initial exploration probability (per agent, independently)."""
+
+    eps_end: float = 0.05
+    """Final exploration probability."""
+
+    eps_decay: float = 0.2
+    """Epsilon = end + (start - end) exp(-step / (eps_decay * run steps)): a fraction of the run, so that
+    a short run exploits too (the 50,000-step protocol run: 10,000 steps; nashq's is 3,500 in any run)."""
+
+    scale_samples: int = 500
+    """The scaled reward: the first samples whose ln u give its mean and spread (then frozen)."""
+
+    shuffle: bool = False
+    """Visit the training tasks in a new random order each episode (else in order)."""
+
+    train_tasks: tuple[int, ...] = ()
+    """Train only on these task indices (held-out tasks get the greedy policy, no samples)."""
+
+    train_fraction: float = 1.0
+    """If train_tasks is empty: train on this fraction of tasks, evenly spaced over the task list."""
+
+    greedy_chunk: int = 32
+    """Tasks scored at once by the final greedy policy (memory: chunk x all actions x hidden floats)."""
+
+    threads: int = 1
+    """torch intra-op threads during the run (0: torch's setting); restored afterwards. 1: the ops are
+    small, and spinning threads on a shared, loaded machine cost more than they gain (as nashq)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# the shared Q-network
+# ---------------------------------------------------------------------------------------------
+class SharedQ(nn.Module):
+    """MLP rows (task features, action's pad coordinates [and pad flags], agent one-hot) -> Q (rows,).
+
+    Initialised as ``nn.Linear`` is (uniform +-1/sqrt(fan_in)) but from ``generator``, never from
+    torch's global generator.
+    """
+
+    def __init__(self, n_in: int, hidden: int, layers: int, generator: torch.Generator):
+        super().__init__()
+        dims = [n_in] + [hidden] * layers + [1]
+        self.w, self.b = nn.ParameterList(), nn.ParameterList()
+        for k in range(len(dims) - 1):
+            bound = 1.0 / math.sqrt(dims[k])
+            self.w.append(nn.Parameter((torch.rand(dims[k], dims[k + 1], generator=generator) * 2 - 1) * bound))
+            self.b.append(nn.Parameter((torch.rand(dims[k + 1], generator=generator) * 2 - 1) * bound))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for w, b in zip(self.w[:-1], self.b[:-1]):
+            x = torch.relu(torch.addmm(b, x, w))
+        return torch.addmm(self.b[-1], x, self.w[-1])[:, 0]
+
+
+class Actions:
+    """The static part of every (agent, action) row, and where each agent's actions lie among them.
+
+    ``rows`` (R, D): an action's normalised pad coordinates (and pad flags), then its agent's one-hot,
+    all agents' actions one after the other (R = sum of the set sizes); agent i's action a is row
+    ``start[i] + a``; ``table`` (N, A_max) the row of each agent's action, padded with row 0 where
+    ``valid`` is False.
+    """
+
+    def __init__(self, problem: Problem):
+        n, sizes = problem.n_agents, [len(s) for s in problem.action_sets]
+        c = problem.candidates
+        cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
+        pts = problem.points  # (options, 2 m)
+        reps = pts.shape[1] // 2
+        pos = (pts - np.tile(cmin, reps)) / np.tile(cspan, reps)
+        if not problem.spec.effector.simple:  # an idle pad's "no pad" sits at the centroid: say so
+            pos = np.concatenate([pos, (problem.options >= 0).astype(float)], axis=1)
+        parts = [np.concatenate([pos[s], np.tile(np.eye(n)[i], (len(s), 1))], axis=1)
+                 for i, s in enumerate(problem.action_sets)]
+        self.rows = torch.tensor(np.concatenate(parts), dtype=torch.float32)
+        self.start = torch.tensor(np.concatenate([[0], np.cumsum(sizes)[:-1]]), dtype=torch.long)
+        self.sizes = np.array(sizes, dtype=np.int64)
+        a = torch.arange(max(sizes))
+        self.valid = a[None, :] < torch.tensor(sizes)[:, None]  # (N, A_max)
+        self.table = torch.where(self.valid, self.start[:, None] + a[None, :], 0)
+
+
+def task_features(problem: Problem) -> torch.Tensor:
+    """(T, F) task features min-max normalised over the problem's tasks (constant features -> 0.5)."""
+    f = problem.features.astype(np.float64)
+    lo, span = f.min(axis=0), np.ptp(f, axis=0)
+    return torch.tensor(np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5), dtype=torch.float32)
+
+
+@torch.no_grad()
+def greedy(q: SharedQ, acts: Actions, feats: torch.Tensor, tasks: np.ndarray) -> np.ndarray:
+    """Each agent's argmax of its own Q on each task: (len(tasks), N) action indices (own sets).
+
+    Exact for VDN: Q_tot = sum_i Q_i(s, a_i), so the joint argmax is the agents' argmaxes."""
+    r = len(acts.rows)
+    x = torch.cat([feats[torch.as_tensor(tasks)][:, None, :].expand(-1, r, -1),
+                   acts.rows[None].expand(len(tasks), -1, -1)], dim=2)
+    qv = q(x.reshape(len(tasks) * r, -1)).reshape(len(tasks), r)
+    qa = qv[:, acts.table].masked_fill(~acts.valid, -math.inf)  # (B, N, A_max)
+    return qa.argmax(dim=2).numpy()
+
+
+def q_tot(q: SharedQ, acts: Actions, feats: torch.Tensor, tasks: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    """VDN's team value of joint actions: tasks (B,), actions (B, N) -> sum_i Q_i(s, a_i) (B,)."""
+    b, n = actions.shape
+    rows = acts.rows[acts.start[None, :] + actions]  # (B, N, D)
+    x = torch.cat([feats[tasks][:, None, :].expand(-1, n, -1), rows], dim=2)
+    return q(x.reshape(b * n, -1)).reshape(b, n).sum(dim=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# the planner
+# ---------------------------------------------------------------------------------------------
+@register
+class VDN(Planner):
+    name = "vdn"
+    description = "value-decomposition networks (VDN): summed per-agent Q, one network shared over pad coordinates"
+    Config = VDNConfig
+    modes = ("per-task",)
+    returns_policy = True
+
+    def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
+        cfg = self.config
+        t_start = time.perf_counter()
+        for field, value, low in (("episodes", cfg.episodes, 1), ("hidden", cfg.hidden, 1), ("layers", cfg.layers, 1),
+                                  ("batch", cfg.batch, 1), ("update_every", cfg.update_every, 1),
+                                  ("capacity", cfg.capacity, 1), ("scale_samples", cfg.scale_samples, 2),
+                                  ("greedy_chunk", cfg.greedy_chunk, 1), ("threads", cfg.threads, 0)):
+            if value < low:
+                raise PlannerError(f"planner '{self.name}': {field} must be at least {low}, got {value}")
+        if not (0 <= cfg.eps_end <= 1 and 0 <= cfg.eps_start <= 1 and cfg.eps_decay > 0):
+            raise PlannerError(f"planner '{self.name}': eps_start and eps_end must be in [0, 1] and eps_decay "
+                               f"positive, got {cfg.eps_start}, {cfg.eps_end}, {cfg.eps_decay}")
+        # the held-out track restricts the evaluator to the training tasks; else the config chooses
+        ids = ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
+        n_train = len(ids)
+        fit = cfg.episodes if math.isinf(ev.remaining) else int(ev.remaining // n_train)
+        if fit < 1:
+            raise PlannerError(f"planner '{self.name}': budget too small: one episode needs {n_train} "
+                               f"samples, {int(ev.remaining)} available")
+        episodes = min(cfg.episodes, fit)
+
+        # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
+        # network's initial weights); torch's global generator is neither seeded nor drawn from
+        gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
+        threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
+        det = torch.are_deterministic_algorithms_enabled()
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        try:
+            if cfg.threads:
+                torch.set_num_threads(cfg.threads)
+            numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
+            run = self._train(problem, ev, rng, ids, episodes, gen)
+        finally:
+            torch.set_num_threads(threads)
+            numba.set_num_threads(numba_threads)
+            torch.use_deterministic_algorithms(det)
+
+        step_reward, step_u, step_task = map(np.array, run["record"])
+        info = {
+            "algorithm": self.name,
+            "episodes_run": episodes,
+            "budget_limited": episodes < cfg.episodes,
+            "train_tasks": ids.tolist(),
+            "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
+            "steps": len(step_reward),
+            "updates": run["updates"],
+            "step_reward": step_reward.tolist(),
+            "step_max_u": step_u.tolist(),
+            "step_task": step_task.tolist(),
+            "episode_return": step_reward.reshape(episodes, n_train).sum(axis=1).tolist(),
+            "episode_loss": run["episode_loss"],  # mean squared error of Q_tot per update, mean per episode
+            "time_setup_s": run["times"][0],  # oracle set-up before training (in no other timer)
+            "time_select_s": run["times"][1],
+            "time_oracle_s": run["times"][2],
+            "time_update_s": run["times"][3],
+            "time_greedy_s": run["times"][4],
+            "time_total_s": time.perf_counter() - t_start,
+            "torch_threads": cfg.threads or threads,
+        }
+        return run["layouts"], info
+
+    def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
+               episodes: int, gen: torch.Generator) -> dict:
+        """The training loop and the greedy policy (the caller restores thread settings)."""
+        cfg, n = self.config, problem.n_agents
+        steps_total = episodes * len(ids)
+        t_setup = time.perf_counter()
+        problem.oracle.prepare()  # set-up, not training: every column now (or from the disk cache), no samples
+        t_setup = time.perf_counter() - t_setup
+        acts, feats = Actions(problem), task_features(problem)
+        q = SharedQ(feats.shape[1] + acts.rows.shape[1], cfg.hidden, cfg.layers, gen)
+        opt = torch.optim.AdamW(q.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        scale = LogScale(cfg.scale_samples)
+        # the env pays the seed's Gaussian reward; the learner's reward is its own transform of max_u
+        env = FixtureEnv(problem, reward="gaussian", shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
+        agents = env.possible_agents
+
+        cap = min(cfg.capacity, steps_total)
+        buf_task = torch.zeros(cap, dtype=torch.long)
+        buf_act = torch.zeros(cap, n, dtype=torch.long)
+        buf_logu = torch.zeros(cap, dtype=torch.float32)  # ln u: rescaled at each update
+
+        step_reward, step_u, step_task, episode_loss = [], [], [], []
+        t_select = t_oracle = t_update = 0.0
+        steps = updates = 0
+        for _ in range(episodes):
+            env.reset(seed=int(rng.integers(2**31 - 1)))
+            loss_sum, n_upd = 0.0, 0
+            while env.agents:
+                # act: per-agent epsilon-greedy; the greedy agents' argmax from one batched pass
+                t0 = time.perf_counter()
+                task = env.task
+                eps = cfg.eps_end + (cfg.eps_start - cfg.eps_end) * math.exp(-steps / (cfg.eps_decay * steps_total))
+                explore = rng.random(n) < eps
+                act = (rng.random(n) * acts.sizes).astype(np.int64)
+                if not explore.all():
+                    act = np.where(explore, act, greedy(q, acts, feats, np.array([task]))[0])
+                t1 = time.perf_counter()
+                _, _, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
+                t2 = time.perf_counter()
+
+                # record: the scaled reward of this step, ln u into the buffer
+                u = infos[agents[0]]["max_u"]
+                log_u = math.log(u)
+                scale.add(log_u)
+                step_reward.append(float(scale.reward(log_u)))
+                step_u.append(u)
+                step_task.append(task)
+                k = steps % cap
+                buf_task[k], buf_logu[k] = task, log_u
+                buf_act[k] = torch.from_numpy(act)
+                steps += 1
+
+                # learn: regress Q_tot on the shared reward (one-step episodes: no bootstrap)
+                size = min(steps, cap)
+                if size >= cfg.batch and steps % cfg.update_every == 0:
+                    idx = torch.from_numpy(rng.integers(0, size, cfg.batch))
+                    target = scale.reward(buf_logu[idx])
+                    loss = torch.mean((q_tot(q, acts, feats, buf_task[idx], buf_act[idx]) - target) ** 2)
+                    opt.zero_grad(set_to_none=False)
+                    loss.backward()
+                    opt.step()
+                    loss_sum += loss.item()
+                    n_upd += 1
+                    updates += 1
+                t_select += t1 - t0
+                t_oracle += t2 - t1
+                t_update += time.perf_counter() - t2
+            episode_loss.append(loss_sum / n_upd if n_upd else None)
+
+        # greedy policy on every task (training and held-out): no samples
+        t3 = time.perf_counter()
+        tasks = np.arange(problem.n_tasks)
+        choice = np.vstack([greedy(q, acts, feats, tasks[i:i + cfg.greedy_chunk])
+                            for i in range(0, len(tasks), cfg.greedy_chunk)])
+        layouts = np.column_stack([problem.action_sets[i][choice[:, i]] for i in range(n)])
+        t_greedy = time.perf_counter() - t3
+        return {"layouts": layouts, "record": (step_reward, step_u, step_task), "episode_loss": episode_loss,
+                "updates": updates, "times": (t_setup, t_select, t_oracle, t_update, t_greedy)}

@@ -1,0 +1,35 @@
+"""Tuning parity (bench/tune.py): the same declared number of trials for every planner, on the
+*_small cases only, the defaults as the first trial, a matrix entry as the result."""
+
+from __future__ import annotations
+
+import pytest
+
+from fixbench.bench.cli import main
+from fixbench.bench.matrix import load_matrix
+from fixbench.bench.tune import matrix_entry, space, tune
+from fixbench.solvers import available
+
+
+@pytest.mark.parametrize("name", sorted(available()))
+def test_every_declared_search_space_is_well_formed(name):
+    spec = space(available()[name])
+    assert all(v[0] in ("int", "float", "log", "choice") for v in spec.values())
+
+
+def test_tuning_starts_from_the_defaults_and_never_ends_worse(tmp_path):
+    result = tune("rules", 4, cases=("wing_panel_small",), seeds=(0,), echo=lambda m: None)
+    assert len(result["trials"]) == 4 and result["trials"][0]["config"] == {"load_weight": 0.25}
+    assert result["tuned"] <= result["default"] == result["trials"][0]["objective"]
+    assert set(result["config"]) <= {"load_weight"}
+    entry = matrix_entry(result)
+    m = tmp_path / "m.toml"
+    m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nbudget = 10\n' + entry)
+    cells = load_matrix(m).cells()
+    assert [c.label for c in cells] == ["rules (tuned)"] and dict(cells[0].config) == result["config"]
+
+
+def test_a_reported_problem_is_refused_in_one_line(capsys):
+    assert main(["tune", "rules", "--trials", "2", "--cases", "wing_panel"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "not a *_small tuning case" in err
