@@ -148,14 +148,14 @@ def metrics(result, reference: dict | None) -> dict:
     return out
 
 
-def policy_columns(result, reference: dict | None) -> dict:
+def policy_columns(result, reference_objective: float) -> dict:
     """The second figure of a planner that returns a policy (``PlanResult.policy_*``): its layouts'
-    objective and regret, beside the incumbents' (the scoring rule: ``fixbench.solvers.base``)."""
+    objective and regret against ``reference_objective`` (NaN: none), beside the incumbents' (the
+    scoring rule: ``fixbench.solvers.base``)."""
     if result.policy_max_deformation is None:
         return {"policy_objective_m": math.nan, "policy_relative_regret": math.nan}
     pol = result.policy_objective
-    ref = metrics(result, reference).get("reference_objective_m", math.nan)
-    return {"policy_objective_m": pol, "policy_relative_regret": pol / ref - 1 if ref == ref else math.nan,
+    return {"policy_objective_m": pol, "policy_relative_regret": pol / reference_objective - 1,
             "policy_per_task_m": json.dumps(result.policy_max_deformation.tolist()),
             "policy_layouts": json.dumps(result.policy_layouts.tolist())}
 
@@ -185,6 +185,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
         budget = cell.budget_for(p.n_tasks)
         res = planner.solve(p, budget, seed=cell.seed, mode="per-task" if cell.mode == "held-out" else cell.mode,
                             train_tasks=cell.train_tasks(p.n_tasks))
+        scores = metrics(res, reference)
         row.update(config_hash=res.config_hash, part=p.spec.part, material=res.material,
                    agents=p.n_agents, n_tasks=p.n_tasks, samples=res.samples,
                    budget=math.nan if budget is None else budget, n_scored_tasks=len(res.scored_tasks),
@@ -195,9 +196,9 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
                    objective_m=res.objective, mean_reward=float(res.reward.mean()),
                    mean_reward_bell=float(res.reward_bell.mean()),
                    layouts=json.dumps(res.layouts.tolist()),
-                   **policy_columns(res, reference),
+                   **policy_columns(res, scores["reference_objective_m"]),
                    info=json.dumps({k: v for k, v in res.info.items() if not _is_curve(v)}, default=str),
-                   **metrics(res, reference))
+                   **scores)
         trace = pd.DataFrame(res.trace, columns=list(TRACE_COLUMNS)).to_dict("list")
         curves = _curves(res.info)
     except Exception as exc:  # a failing run is a row with its error, not a crash of the matrix

@@ -281,9 +281,9 @@ class _Scored:
         import json
 
         self.max_deformation = np.asarray(json.loads(row["per_task_m"]), dtype=float)
-        self.layouts = self.max_deformation[:, None]  # metrics reads only its shape: (tasks, 1)
         self.mode = "per-task" if row["mode"] == "held-out" else row["mode"]
         n, k = len(self.max_deformation), row.get("heldout_every")
+        self.layouts = np.empty((n, int(row["agents"])))  # metrics reads only its shape (tasks, agents)
         self.held_out = None
         if row["mode"] == "held-out" and k:
             self.held_out = np.setdiff1d(np.arange(n), np.arange(0, n, int(k)))

@@ -54,7 +54,6 @@ import time
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numba
 import numpy as np
 import torch
 
@@ -64,6 +63,7 @@ from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from fixbench.solvers.marl_engine import Learner, Update
 from fixbench.solvers.registry import register
+from fixbench.solvers.torch_run import torch_run
 
 #: the learners' rewards (docs/protocol.md#reward-functions)
 REWARDS = ("scaled", "gaussian", "bell")
@@ -200,15 +200,8 @@ class _QPlanner(Planner):
         # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
         # networks' initial weights); torch's global generator is neither seeded nor drawn from
         gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
-        threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-        det = torch.are_deterministic_algorithms_enabled()
-        torch.use_deterministic_algorithms(True, warn_only=True)
-        try:
+        with torch_run(cfg.threads):
             run = self._train(problem, ev, rng, ids, episodes, device, gen)
-        finally:
-            torch.set_num_threads(threads)
-            numba.set_num_threads(numba_threads)
-            torch.use_deterministic_algorithms(det)
         layouts, (step_reward, step_u, step_task, ep_return, ep_loss) = run["layouts"], run["record"]
         sweeps_sum, conv_sum, br_calls = run["sweeps"]
         t_oracle, t_select, t_update, t_greedy = run["times"]
@@ -253,19 +246,16 @@ class _QPlanner(Planner):
             "time_oracle_cum_s": [t[0] for t in run["episode_times"]],
             "time_select_cum_s": [t[1] for t in run["episode_times"]],
             "time_update_cum_s": [t[2] for t in run["episode_times"]],
-            "torch_threads": cfg.threads or threads,
+            "torch_threads": cfg.threads or torch.get_num_threads(),  # restored: the setting outside the run
         }
         return layouts, info
 
 
     def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
                episodes: int, device: torch.device, gen: torch.Generator) -> dict:
-        """The training loop and the greedy policy (the caller restores thread settings)."""
+        """The training loop and the greedy policy (run under :func:`torch_run`)."""
         cfg, n = self.config, problem.n_agents
         steps_total = episodes * len(ids)
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
-        numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
         t_setup = time.perf_counter()
         problem.oracle.prepare()  # set-up, not training: every column now (or from the disk cache), no samples
         t_setup = time.perf_counter() - t_setup

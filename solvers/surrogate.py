@@ -61,7 +61,6 @@ import time
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numba
 import numpy as np
 import torch
 
@@ -76,6 +75,7 @@ from fixbench.solvers.base import (
     split_budget,
 )
 from fixbench.solvers.registry import register
+from fixbench.solvers.torch_run import torch_run
 from fixbench.solvers.transfer import nearest_tasks, scaled_features, warm_layouts
 
 
@@ -231,18 +231,8 @@ class SurrogateTS(Planner):
                                "must be at least 1")
         require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
         gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
-        threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-        det = torch.are_deterministic_algorithms_enabled()
-        torch.use_deterministic_algorithms(True, warn_only=True)
-        try:
-            if cfg.threads:
-                torch.set_num_threads(cfg.threads)
-            numba.set_num_threads(1)  # small batches: the oracle's threads would only spin beside torch's
-            return self._run(problem, ev, rng, gen)
-        finally:
-            torch.set_num_threads(threads)
-            numba.set_num_threads(numba_threads)
-            torch.use_deterministic_algorithms(det)
+        with torch_run(cfg.threads):
+                return self._run(problem, ev, rng, gen)
 
     def _run(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, gen: torch.Generator):
         cfg, n, sets = self.config, problem.n_agents, problem.action_sets

@@ -49,7 +49,6 @@ import time
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numba
 import numpy as np
 import torch
 from torch import nn
@@ -60,6 +59,7 @@ from fixbench.cases.rewards import LogScale
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
 from fixbench.solvers.nashq import train_ids
 from fixbench.solvers.registry import register
+from fixbench.solvers.torch_run import torch_run
 
 
 # ---------------------------------------------------------------------------------------------
@@ -245,18 +245,8 @@ class VDN(Planner):
         # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
         # network's initial weights); torch's global generator is neither seeded nor drawn from
         gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
-        threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
-        det = torch.are_deterministic_algorithms_enabled()
-        torch.use_deterministic_algorithms(True, warn_only=True)
-        try:
-            if cfg.threads:
-                torch.set_num_threads(cfg.threads)
-            numba.set_num_threads(1)  # one layout per step: the oracle's threads would only spin beside torch's
-            run = self._train(problem, ev, rng, ids, episodes, gen)
-        finally:
-            torch.set_num_threads(threads)
-            numba.set_num_threads(numba_threads)
-            torch.use_deterministic_algorithms(det)
+        with torch_run(cfg.threads):
+                run = self._train(problem, ev, rng, ids, episodes, gen)
 
         step_reward, step_u, step_task = map(np.array, run["record"])
         info = {
@@ -278,7 +268,7 @@ class VDN(Planner):
             "time_update_s": run["times"][3],
             "time_greedy_s": run["times"][4],
             "time_total_s": time.perf_counter() - t_start,
-            "torch_threads": cfg.threads or threads,
+            "torch_threads": cfg.threads or torch.get_num_threads(),  # restored: the setting outside the run
         }
         return run["layouts"], info
 

@@ -9,7 +9,6 @@ import torch
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.random_search import RandomSearch
 from fixbench.solvers.surrogate import Ensemble, Responder, SurrogateTS
 
 
@@ -64,28 +63,3 @@ def test_best_response_tables_equal_the_network():
                                pts[torch.from_numpy(glob)].reshape(sizes[i], -1)], 1)
                 want = model(x.expand(2, -1, -1))[k]
                 torch.testing.assert_close(got[q], want.detach(), rtol=1e-5, atol=1e-5)
-
-
-@pytest.mark.slow
-def test_beats_random_search_at_100_samples_a_task(problem):
-    """Measured (mean max |u| over seeds 0-2): random 41.8 um, surrogate-ts 18.7 um."""
-    budget = 100 * problem.n_tasks
-    rand = [RandomSearch().solve(problem, budget, seed=s).objective for s in range(3)]
-    ts = [SurrogateTS().solve(problem, budget, seed=s) for s in range(3)]
-    assert all(r.samples == budget for r in ts)
-    assert np.mean([r.objective for r in ts]) < np.mean(rand)
-
-
-def test_held_out_track(problem):
-    train = list(range(0, problem.n_tasks, 5))
-    held = np.setdiff1d(np.arange(problem.n_tasks), train)
-    budget = 40 * len(train)
-    result = SurrogateTS(train_steps=20).solve(problem, budget, seed=1, train_tasks=train)
-    assert result.samples == budget
-    assert set(result.trace[:, 0].astype(int)) == set(train)  # samples on training tasks only
-    np.testing.assert_array_equal(result.held_out, held)
-    for a, allowed in enumerate(problem.action_sets):
-        assert np.isin(result.layouts[:, a], allowed).all()
-    assert "held_out_from" not in result.info  # every held-out layout is the planner's own
-    assert result.info["held_out_sweeps"] >= len(held)
-    assert np.isfinite(result.objective) and result.objective > 0
