@@ -215,6 +215,42 @@ class Responder:
 
 
 # ---------------------------------------------------------------------------------------------
+# inputs and proposals (gp-ucb uses them too)
+# ---------------------------------------------------------------------------------------------
+def pad_coordinates(problem: Problem) -> np.ndarray:
+    """(n_options, 2 m) pad coordinates of every action, in [-1, 1] of the candidates' bounding box."""
+    lo, hi = problem.candidates.min(axis=0), problem.candidates.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    n_opt = len(problem.points)
+    return (2 * (problem.points.reshape(n_opt, -1, 2) - lo) / span - 1).reshape(n_opt, -1)
+
+
+def set_positions(problem: Problem) -> np.ndarray:
+    """Global action -> its position in its agent's set."""
+    pos = np.zeros(len(problem.points), dtype=np.int64)
+    for a in problem.action_sets:
+        pos[a] = np.arange(len(a))
+    return pos
+
+
+def move_repeats(layouts: np.ndarray, done: set, batch: set, sets: list[np.ndarray], rng: np.random.Generator,
+                 tries: int) -> tuple[np.ndarray, int]:
+    """``layouts`` with every one already in ``done`` (evaluated on the task) or in ``batch`` (proposed in
+    this batch) moved to a random neighbour (one agent's action changed at random, up to ``tries`` times,
+    then the repeat is accepted); adds the results to ``batch``; returns them and how many moved."""
+    out, moved = layouts.copy(), 0
+    for r in range(len(out)):
+        key, k = tuple(out[r].tolist()), 0
+        while (key in done or key in batch) and k < tries:
+            a = int(rng.integers(len(sets)))
+            out[r, a] = sets[a][rng.integers(len(sets[a]))]
+            key, k = tuple(out[r].tolist()), k + 1
+        moved += k > 0
+        batch.add(key)
+    return out, moved
+
+
+# ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
 @register
@@ -242,14 +278,8 @@ class SurrogateTS(Planner):
         # inputs: centred scaled features; pad coordinates in [-1, 1] of the candidates' bounding box
         feats = scaled_features(problem)
         feats = torch.tensor(feats - feats.mean(axis=0), dtype=torch.float32)
-        lo, hi = problem.candidates.min(axis=0), problem.candidates.max(axis=0)
-        span = np.where(hi > lo, hi - lo, 1.0)
-        n_opt = len(problem.points)
-        pts = (2 * (problem.points.reshape(n_opt, -1, 2) - lo) / span - 1).reshape(n_opt, -1)
-        pts = torch.tensor(pts, dtype=torch.float32)
-        pos = np.zeros(n_opt, dtype=np.int64)  # global action -> position in its agent's set
-        for a in sets:
-            pos[a] = np.arange(len(a))
+        pts = torch.tensor(pad_coordinates(problem), dtype=torch.float32)
+        pos = set_positions(problem)
 
         # the data: every evaluated (task, layout) and its log max deformation, bootstrap weights per member
         ids = ev.tasks
@@ -265,21 +295,6 @@ class SurrogateTS(Planner):
         opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         steps = 0
         losses = []
-
-        def fresh(task: int, layouts: np.ndarray) -> tuple[np.ndarray, int]:
-            """Layouts with repeats (on the task, or within the batch) moved to random neighbours."""
-            done, moved = seen[task], 0
-            out = layouts.copy()
-            batch = set()
-            for r in range(len(out)):
-                key, k = tuple(out[r].tolist()), 0
-                while (key in done or key in batch) and k < cfg.tries:
-                    a = int(rng.integers(n))
-                    out[r, a] = sets[a][rng.integers(len(sets[a]))]
-                    key, k = tuple(out[r].tolist()), k + 1
-                moved += k > 0
-                batch.add(key)
-            return out, moved
 
         def evaluate(task: int, layouts: np.ndarray) -> None:
             nonlocal size, t_oracle
@@ -321,7 +336,7 @@ class SurrogateTS(Planner):
         for t, s in zip(ids, shares):
             m = min(cfg.initial_random, int(s))
             if m:
-                layouts, k = fresh(int(t), random_layouts(problem, rng, m))
+                layouts, k = move_repeats(random_layouts(problem, rng, m), seen[int(t)], set(), sets, rng, cfg.tries)
                 moved += k
                 evaluate(int(t), layouts)
         left -= np.minimum(cfg.initial_random, shares)
@@ -360,7 +375,7 @@ class SurrogateTS(Planner):
             t_act += time.perf_counter() - t0
             for t in ids[counts > 0]:
                 t0 = time.perf_counter()
-                layouts, k = fresh(int(t), proposals[q_task == t])
+                layouts, k = move_repeats(proposals[q_task == t], seen[int(t)], set(), sets, rng, cfg.tries)
                 moved += k
                 t_act += time.perf_counter() - t0
                 evaluate(int(t), layouts)
