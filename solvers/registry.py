@@ -29,7 +29,8 @@ BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solver
            "nashq": "fixbench.solvers.nashq", "iql": "fixbench.solvers.nashq",
            "optuna": "fixbench.solvers.optuna_tpe", "rules": "fixbench.solvers.rules",
            "surrogate-ts": "fixbench.solvers.surrogate",
-           "vdn": "fixbench.solvers.vdn"}
+           "vdn": "fixbench.solvers.vdn",
+           "gp-ucb": "fixbench.solvers.gp_bandit"}
 _REGISTRY: dict[str, type[Planner]] = {}
 
 
