@@ -1,7 +1,7 @@
 """The committed analyses of ``results/analysis/``: the seed's Figure 3, the equilibrium landscape
 of the small cases and the number of robots a job needs, with their tables.
 
-    python -m fixbench.bench.analysis [--out results/analysis] [--readme README.md] [--only equilibria|robots]
+    python -m fixbench.bench.analysis [--out results/analysis] [--readme docs/equilibria.md] [--only equilibria|robots]
         [--starts 10000] [--seed 0] [--tolerance-um 50] [--fraction 0.75]
 
 Writes to OUT:

@@ -3,7 +3,7 @@
 A matrix names cases, materials, planners (optionally with config overrides and their own budget),
 seeds, budgets, agent counts, modes and, optionally, how many tasks of each case to use. Every
 combination is one *cell*: one planner run, identified by a hash of its settings, so a rerun can
-skip what is done. The format is documented in README ("Benchmark matrices").
+skip what is done. The format is documented in docs/matrices.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``fixbench report``: tables and figures of a run directory (see README "Reports").
+"""``fixbench report``: tables and figures of a run directory (docs/reporting.md).
 
 Everything is read back from the results store (:mod:`fixbench.bench.store`): rows, anytime traces,
 learners' training curves and the regret references. The report folder gets

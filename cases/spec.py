@@ -2,7 +2,7 @@
 
 A case describes one part and its fixture problem: geometry, mesh density, material, base supports,
 fixture candidates, agents, tasks (load cases) and reward settings. The format is documented in
-README ("Case files"); :func:`load_case_spec` is the only reader. Every problem found in a file is a
+docs/cases.md#case-files; :func:`load_case_spec` is the only reader. Every problem found in a file is a
 one-line :class:`~fixbench.cases.errors.CaseError` naming file, key and problem.
 """
 
