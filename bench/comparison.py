@@ -11,6 +11,8 @@
     versus_best_table   P(X < best) of every planner against the one ranked first, per column of the main
                         table (the README's second table: can anything beat the best?)
     policy_table        the learners' second figure: their greedy policy's regret beside the incumbents'
+    iqm_table           per-position regrets pooled over runs: interquartile mean with rliable's stratified
+                        bootstrap (runs resampled within each position), beside the main table's means
 
 Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each planner's incumbent
 (the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
@@ -31,7 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.stats import mean_ci, probability_of_improvement, ref_key
+from fixbench.bench.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement, ref_key
 from fixbench.bench.tables import ci_column, fmt, setting_text
 
 #: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
@@ -312,6 +314,60 @@ def show_policy(table: pd.DataFrame) -> pd.DataFrame:
     for name in [c for c in table.columns if c != "planner" and not c.endswith(("_lo", "_hi"))]:
         out[name.replace(" policy", ", policy") if name.endswith(" policy") else f"{name}, incumbent"] = \
             ci_column(table, name)
+    return out
+
+
+def _position_regrets(row, refs: dict) -> np.ndarray | None:
+    """A row's relative regret (%) on each task it is scored on, against the reference's value there
+    (held-out rows: the held-out tasks); None without a per-task list or a reference."""
+    ref = refs.get(ref_key(row))
+    per_task = row.get("per_task_m")
+    if ref is None or not isinstance(per_task, str) or not per_task:
+        return None
+    u = np.asarray(json.loads(per_task), dtype=float)
+    opt = np.asarray(ref["per_task"], dtype=float)
+    n = int(row["n_tasks"])
+    if not len(u) == len(opt) == n:
+        return None
+    idx = heldout_tasks(n, int(row["heldout_every"])) if row["mode"] == "held-out" else list(range(n))
+    return (u[idx] / opt[idx] - 1) * 100
+
+
+def iqm_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
+    """Per planner label and main-table column of a per-task or held-out track: the interquartile mean
+    of the per-position relative regrets (%) of all its cells pooled (runs x positions), with a 95 %
+    stratified-bootstrap CI (rliable, Agarwal et al. NeurIPS 2021: the runs are resampled within each
+    position), beside the mean of the same pooled values. The main table's regret is the mean
+    deformation's regret, so a few positions where a planner is far off weigh in it; the IQM drops the
+    best and worst quarter of (run, position) pairs. Shared-mode cells (scored by their worst task) are
+    left out."""
+    scored = _scored(rows)
+    scored = scored[scored["mode"].fillna("per-task").isin(["per-task", "held-out"])]
+    columns = [(n, c, m) for n, c, m in main_columns(rows) if m != "shared"]
+    recs = []
+    for label in sorted(scored["label"].unique()):
+        rec = {"planner": label}
+        for name, case, mode in columns:
+            pick = (scored["label"] == label) & (scored["case"] == case)
+            if mode is not None:
+                pick &= scored["mode"].fillna("per-task") == mode
+            regrets = [r for r in (_position_regrets(row, refs) for _, row in scored[pick].iterrows())
+                       if r is not None]
+            values = np.concatenate(regrets) if regrets else np.array([])
+            strata = np.concatenate([np.arange(len(r)) for r in regrets]) if regrets else None
+            p, lo, hi = bootstrap_ci(values, strata=strata, stat=iqm)
+            rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi,
+                        f"{name} mean": float(values.mean()) if len(values) else math.nan})
+        recs.append(rec)
+    return pd.DataFrame(recs)
+
+
+def show_iqm(table: pd.DataFrame) -> pd.DataFrame:
+    """The IQM table formatted like the main table: ``IQM [lo, hi]`` and the pooled mean per column."""
+    out = pd.DataFrame({"planner": table["planner"]})
+    for name in [c for c in table.columns if c != "planner" and not c.endswith(("_lo", "_hi", " mean"))]:
+        out[f"{name}, IQM"] = ci_column(table, name)
+        out[f"{name}, mean"] = table[f"{name} mean"].map(fmt)
     return out
 
 

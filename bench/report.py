@@ -39,11 +39,13 @@ import pandas as pd  # noqa: E402
 from fixbench.bench.comparison import (  # noqa: E402
     heldout_table,
     improvement_table,
+    iqm_table,
     main_columns,
     main_table,
     policy_table,
     show_heldout,
     show_improvement,
+    show_iqm,
     show_main,
     show_policy,
     show_sweep,
@@ -234,6 +236,14 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
                 "of planners that trained on tasks 0, k, 2k, ... and acted on the others with zero samples, "
                 "beside the per-task cells (which pay samples on every task) scored on the same held-out "
                 "tasks against the same reference; `samples a cell` is the mean spent in all.")
+    iq = iqm_table(rows, refs)
+    if not iq.empty and len(iq.columns) > 1:
+        w.table("iqm", iq, show_iqm(iq),
+                "Interquartile mean (rliable) of the per-position relative regret (%), every cell's scored "
+                "positions pooled (per-task: all; held-out: the held-out ones), with a 95 % stratified-"
+                f"bootstrap CI ({N_BOOT} resamples, fixed seed; the runs are resampled within each position), "
+                "and the mean of the same per-position regrets. The main table's regret is that of the mean "
+                "deformation; the IQM leaves out the best and worst quarter of (run, position) pairs.")
     group = group_keys(rows)[1:]
     imp = improvement_table(rows, group)
     if imp.empty:

@@ -481,3 +481,26 @@ def test_comparison_sections_deterministic(swept, tmp_path):
         map(str, files))
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+def test_iqm_table_pools_positions_and_leaves_out_the_tails():
+    from scipy.stats import trim_mean
+
+    from fixbench.bench.comparison import iqm_table
+    opt = [1.0, 2.0, 4.0, 8.0, 1.0, 1.0]
+    refs = {("c", "m", 2, 6): {"per_task": opt}}
+    ratios = {0: [1.1, 1.2, 1.0, 5.0, 1.3, 1.4], 1: [1.2, 1.1, 1.05, 1.0, 9.0, 1.5]}
+    recs = []
+    for seed, r in ratios.items():
+        for mode in ("per-task", "held-out"):
+            recs.append(dict(case="c", material="m", agents=2, n_tasks=6, mode=mode, heldout_every=3, seed=seed,
+                             label="p", ok=True, relative_regret=0.5,
+                             per_task_m=json.dumps([o * x for o, x in zip(opt, r)])))
+    table = iqm_table(pd.DataFrame(recs), refs).set_index("planner")
+    pooled = (np.array(ratios[0] + ratios[1]) - 1) * 100
+    assert table.loc["p", "c (per-task)"] == pytest.approx(trim_mean(pooled, 0.25))
+    assert table.loc["p", "c (per-task) mean"] == pytest.approx(pooled.mean())
+    assert table.loc["p", "c (per-task)_lo"] <= trim_mean(pooled, 0.25) <= table.loc["p", "c (per-task)_hi"]
+    held = (np.array([ratios[s][t] for s in (0, 1) for t in (1, 2, 4, 5)]) - 1) * 100  # not 0 and 3
+    assert table.loc["p", "c (held-out)"] == pytest.approx(trim_mean(held, 0.25))
+    assert trim_mean(pooled, 0.25) < pooled.mean()  # the 5x and 9x positions are in the tail, not the IQM
