@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass, field
 import click
 import numpy as np
 
+from fixbench.bench.cli_common import run_command
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.references import case_fingerprint, load_reference, write_reference
@@ -427,8 +428,6 @@ def cli(command: str, as_json: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    from fixbench.bench.cli import run_command
-
     return run_command(cli, argv, PROG)
 
 

@@ -3,7 +3,7 @@ and compiled best-response kernels. The algorithm (hyper-parameters, training lo
 reads top to bottom in ``solvers/nashq.py``; this module only makes it fast, with every shortcut
 tested against the plain computation it replaces (``tests/test_nashq.py``).
 
-Speed (``python -m fixbench.bench.marl speed``; times per phase in the planner's ``info``): the N
+Speed (``python -m fixbench.bench.studies.marl speed``; times per phase in the planner's ``info``): the N
 networks are one batched module with all weights in one flat vector; the update computes only the
 chosen actions' outputs, back-propagates by hand into a persistent gradient buffer (tested against
 autograd) and runs clip + AdamW + soft target update as one fused numba pass (tested against torch's
@@ -13,7 +13,6 @@ AdamW); best response is one compiled (numba) call per step on zero-copy views o
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -23,8 +22,6 @@ from torch import nn
 
 from fixbench.cases.problem import Problem
 
-if TYPE_CHECKING:
-    from fixbench.solvers.nashq import NashQConfig
 
 # ---------------------------------------------------------------------------------------------
 # the agents' Q-networks, batched: agent n's layer k is w[k][n] (in, out) and b[k][n] (1, out)
@@ -213,7 +210,7 @@ class Update:
 
 
 def load_weights(path: str) -> StackedQ:
-    """Trained Q-networks saved by ``NashQConfig.save_path`` (loaded with ``weights_only=True``)."""
+    """Trained Q-networks saved by the learner's ``save_path`` (loaded with ``weights_only=True``)."""
     return StackedQ.from_state_dict(torch.load(path, weights_only=True, map_location="cpu"))
 
 
@@ -349,12 +346,13 @@ def _heads(problem: Problem) -> tuple[list[np.ndarray], int, int]:
 # the learner (nashq when joint=True, iql when joint=False)
 # ---------------------------------------------------------------------------------------------
 class Learner:
-    """Networks, inputs and action choice of N agents on one problem."""
+    """Networks, inputs and action choice of N agents on one problem: ``hidden`` units in each of
+    the three hidden layers, at most ``max_sweeps`` best-response sweeps per greedy choice."""
 
-    def __init__(self, problem: Problem, cfg: NashQConfig, joint: bool, device: torch.device,
+    def __init__(self, problem: Problem, hidden: int, max_sweeps: int, joint: bool, device: torch.device,
                  generator: torch.Generator):
         self.n = n = problem.n_agents
-        self.max_sweeps = cfg.max_sweeps
+        self.max_sweeps = max_sweeps
         self.joint = joint and n > 1
         self.device = device
         sizes = [len(s) for s in problem.action_sets]
@@ -385,8 +383,8 @@ class Learner:
         self.others = torch.tensor([[j for j in range(n) if j != i] for i in range(n)],
                                    dtype=torch.long, device=device).reshape(n, max(n - 1, 0))
         n_in = feats.shape[1] + (d * (n - 1) if self.joint else 0)
-        self.q = StackedQ(n, n_in, cfg.hidden, m * width, generator).to(device)
-        self.target = StackedQ(n, n_in, cfg.hidden, m * width).to(device)  # zeros, then the policy's weights
+        self.q = StackedQ(n, n_in, hidden, m * width, generator).to(device)
+        self.target = StackedQ(n, n_in, hidden, m * width).to(device)  # zeros, then the policy's weights
         self.target.load_state_dict(self.q.state_dict())
         self.target.requires_grad_(False)
         self.agent_idx = torch.arange(n, device=device)

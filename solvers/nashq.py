@@ -259,7 +259,7 @@ class _QPlanner(Planner):
         t_setup = time.perf_counter()
         problem.oracle.prepare()  # set-up, not training: every column now (or from the disk cache), no samples
         t_setup = time.perf_counter() - t_setup
-        L = Learner(problem, cfg, self.joint, device, gen)
+        L = Learner(problem, cfg.hidden, cfg.max_sweeps, self.joint, device, gen)
         opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
         # the scaled reward is the learner's own transform of the env's max_u (the env pays the Gaussian)
         scale = LogScale(cfg.scale_samples) if cfg.reward == "scaled" else None

@@ -14,7 +14,6 @@ from fixbench.cases.spec import Effector
 from fixbench.solvers.base import PlannerError
 from fixbench.solvers.marl_engine import Learner as _Learner
 from fixbench.solvers.marl_engine import StackedQ, Update, _q_row, load_weights
-from fixbench.solvers.nashq import NashQConfig
 from fixbench.solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
@@ -142,7 +141,7 @@ def test_bad_device(problem):
 
 
 def test_figure4_panels(problem, tmp_path):
-    from fixbench.bench.marl import figure4
+    from fixbench.bench.studies.marl import figure4
 
     r = get("iql")(**SMALL).solve(problem, None, seed=0)
     paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
@@ -194,8 +193,7 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
                            candidates=xy, points=xy, n_tasks=t, spec=SimpleNamespace(effector=Effector()))
     cut = 0
     for max_sweeps in (3, 10):
-        L = _Learner(prob, NashQConfig(hidden=256, max_sweeps=max_sweeps), True, torch.device("cpu"),
-                     torch.Generator().manual_seed(1))
+        L = _Learner(prob, 256, max_sweeps, True, torch.device("cpu"), torch.Generator().manual_seed(1))
         for k in range(t):
             fixed = rng.random((1, n)) < 0.2
             fixed_actions = (rng.random((1, n)) * 400).astype(np.int64)
@@ -209,8 +207,8 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
 
 
 def test_heldout_benchmark_rows():
-    """fixbench.bench.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
-    from fixbench.bench.marl import heldout
+    """studies.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
+    from fixbench.bench.studies.marl import heldout
 
     rows = heldout("wing_spar_small", "nashq", fraction=0.4, episodes=2, per_task=(1, 3), baselines=("random",),
                    hidden=16)
@@ -222,9 +220,9 @@ def test_heldout_benchmark_rows():
 
 
 def test_update_floor_times_the_updates_own_products():
-    """fixbench.bench.marl floor: the products it times do the floating-point work torch counts in a real
+    """fixbench.bench.studies.marl floor: the products it times do the floating-point work torch counts in a real
     update, and the lower bound it derives lies below what the update costs on the same machine."""
-    from fixbench.bench.marl import update_floor
+    from fixbench.bench.studies.marl import update_floor
 
     r = update_floor("wing_panel_small", repeat=5)
     assert r["bmm_gflop"] == r["products_gflop"] > 0

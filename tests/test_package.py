@@ -30,7 +30,8 @@ def test_wheel_has_one_top_level_package_and_its_data(wheel):
     assert tops == {"fixbench"}
     for needed in ("fixbench/__main__.py", "fixbench/cases/catalog/wing_panel.toml",
                    "fixbench/cases/catalog/references/wing_panel__aluminium__a5.json",
-                   "fixbench/bench/matrices/default.toml", "fixbench/bench/matrices/paper.toml"):
+                   "fixbench/bench/matrices/default.toml", "fixbench/bench/matrices/paper.toml",
+                   "fixbench/bench/cli_common.py", "fixbench/bench/studies/marl.py"):
         assert needed in names, needed
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))

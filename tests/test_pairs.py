@@ -15,7 +15,6 @@ from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import parse_case
 from fixbench.solvers import available, get
 from fixbench.solvers.marl_engine import Learner, _q_row
-from fixbench.solvers.nashq import NashQConfig
 
 PAIR = 'fixtures_per_agent = 2\neffector = "pair"\nspan_mm = 150\n'
 IDLE = "idle = true\npads = 1\n"
@@ -97,7 +96,7 @@ def test_factored_best_response_equals_brute_force_over_pad_tuples(joint):
     """An action's Q is the sum of its pads' heads; the compiled best response must pick, for each
     agent given the others, the tuple a brute force over every feasible tuple picks."""
     p = _plate('fixtures_per_agent = 2\neffector = "pair"\nspan_mm = 300\nidle = true\n', count=2)
-    L = Learner(p, NashQConfig(hidden=16, max_sweeps=1), joint, torch.device("cpu"), torch.Generator().manual_seed(4))
+    L = Learner(p, 16, 1, joint, torch.device("cpu"), torch.Generator().manual_seed(4))  # hidden 16, 1 sweep
     w, b = L._host_weights()
     n_tasks = p.n_tasks
     for t in range(n_tasks):
@@ -116,7 +115,7 @@ def test_factored_best_response_equals_brute_force_over_pad_tuples(joint):
 
 def test_factored_update_gradient_equals_autograd():
     p = _plate(PAIR)
-    L = Learner(p, NashQConfig(hidden=8), True, torch.device("cpu"), torch.Generator().manual_seed(0))
+    L = Learner(p, 8, 1, True, torch.device("cpu"), torch.Generator().manual_seed(0))  # hidden 8, 1 sweep
     rng = np.random.default_rng(0)
     tasks = torch.from_numpy(rng.integers(0, p.n_tasks, (2, 5)))
     acts = torch.from_numpy(rng.integers(0, 3, (2, 5, 2)))

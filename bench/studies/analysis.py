@@ -1,8 +1,8 @@
 """The committed analyses of ``results/analysis/``: the seed's Figure 3, the equilibrium landscape
 of the small cases and the number of robots a job needs, with their tables.
 
-    python -m fixbench.bench.analysis [--out results/analysis] [--readme docs/equilibria.md] [--only equilibria|robots]
-        [--starts 10000] [--seed 0] [--tolerance-um 50] [--fraction 0.75]
+    python -m fixbench.bench.studies.analysis [--out results/analysis] [--readme docs/equilibria.md]
+        [--only equilibria|robots] [--starts 10000] [--seed 0] [--tolerance-um 50] [--fraction 0.75]
 
 Writes to OUT:
 
@@ -24,6 +24,8 @@ from pathlib import Path
 
 import click
 import pandas as pd
+
+from fixbench.bench.cli_common import run_command
 
 #: the small cases whose landscape is tabulated (every task, the catalog's agents and material)
 SMALL_CASES = ("wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small")
@@ -154,7 +156,7 @@ def _short(answer: dict) -> str:
     return str(answer["agents"]) if answer["proven"] else f"<= {answer['agents']}"
 
 
-PROG = "python -m fixbench.bench.analysis"
+PROG = "python -m fixbench.bench.studies.analysis"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
@@ -186,8 +188,6 @@ def cli(out, readme, only, starts, seed, tolerance_um, fraction) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
-    from fixbench.bench.cli import run_command
-
     return run_command(cli, argv, PROG)
 
 

@@ -1,9 +1,9 @@
 """One command for a machine with a GPU: the published protocol on CUDA beside the CPU, same seeds.
 
-    python -m fixbench.bench.gpu_check [--case wing_panel] [--planner nashq] [--seeds 0,1] [--threads 2]
+    python -m fixbench.bench.studies.gpu_check [--case wing_panel] [--planner nashq] [--seeds 0,1] [--threads 2]
                               [--episodes 100] [--json]
 
-For each seed it runs ``python -m fixbench.bench.marl speed`` once with ``--device cuda`` and once on the
+For each seed it runs ``python -m fixbench.bench.studies.marl speed`` once with ``--device cuda`` and once on the
 CPU (``--threads``), each in a fresh process (the oracle set-up is shared through the disk cache and
 kept out of the times), and prints per device: wall time of training and its split (oracle,
 selection, updates), the greedy policy's mean max deformation and the mean return of the last ten
@@ -22,15 +22,17 @@ import sys
 import click
 import numpy as np
 
+from fixbench.bench.cli_common import run_command
+
 
 def _run(case: str, planner: str, seed: int, episodes: int, device: str, threads: int) -> dict:
-    cmd = [sys.executable, "-m", "fixbench.bench.marl", "speed", "--case", case, "--planner", planner,
+    cmd = [sys.executable, "-m", "fixbench.bench.studies.marl", "speed", "--case", case, "--planner", planner,
            "--seed", str(seed), "--episodes", str(episodes), "--device", device, "--threads", str(threads), "--json"]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     return json.loads(out)
 
 
-PROG = "python -m fixbench.bench.gpu_check"
+PROG = "python -m fixbench.bench.studies.gpu_check"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
@@ -72,8 +74,6 @@ def cli(case: str, planner: str, seeds: str, episodes: int, threads: int, as_jso
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    from fixbench.bench.cli import run_command
-
     return run_command(cli, argv, PROG)
 
 

@@ -1,12 +1,12 @@
 """MARL benchmark: the seed's Figure 4, the speed of the reference protocol, and small-case optima.
 
-    python -m fixbench.bench.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
-    python -m fixbench.bench.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
+    python -m fixbench.bench.studies.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
+    python -m fixbench.bench.studies.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
                                           [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
-    python -m fixbench.bench.marl table   [--episodes 100] [--seed 0] [--json]
-    python -m fixbench.bench.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
+    python -m fixbench.bench.studies.marl table   [--episodes 100] [--seed 0] [--json]
+    python -m fixbench.bench.studies.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
                                           [--episodes 100] [--json]
-    python -m fixbench.bench.marl floor   [--case wing_panel] [--threads T] [--json]
+    python -m fixbench.bench.studies.marl floor   [--case wing_panel] [--threads T] [--json]
 
 ``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
@@ -37,6 +37,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from fixbench.bench.cli_common import run_command
 from fixbench.bench.figures import FIGURE4_CURVES, figure4_panels, palette
 from fixbench.bench.plots import save_png
 from fixbench.cases.problem import Problem, load_problem
@@ -145,7 +146,8 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     problem = load_problem(case, agents=agents)
     cfg = NashQConfig()
-    learner = Learner(problem, cfg, True, torch.device("cpu"), torch.Generator().manual_seed(seed))
+    learner = Learner(problem, cfg.hidden, cfg.max_sweeps, True, torch.device("cpu"),
+                      torch.Generator().manual_seed(seed))
     opt = Update(learner.q, learner.target, cfg.lr, cfg.grad_clip, cfg.tau, torch.device("cpu"))
     rng = np.random.default_rng(seed)
     n, nb, sizes = problem.n_agents, cfg.batch, np.array(learner.sizes)
@@ -294,7 +296,7 @@ def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
     return best
 
 
-PROG = "python -m fixbench.bench.marl"
+PROG = "python -m fixbench.bench.studies.marl"
 
 
 @click.group(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
@@ -389,8 +391,6 @@ def _print_rows(rows: list[dict], as_json: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    from fixbench.bench.cli import run_command
-
     return run_command(cli, argv, PROG)
 
 

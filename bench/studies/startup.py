@@ -1,6 +1,6 @@
 """Start-up time of the everyday commands, as whole processes, side by side with a baseline.
 
-    python -m fixbench.bench.startup [--runs 7] [--baseline "python /old/checkout/fixbench-cli.py"] [--json]
+    python -m fixbench.bench.studies.startup [--runs 7] [--baseline "python /old/checkout/fixbench-cli.py"] [--json]
 
 Runs ``fixbench --help``, ``fixbench cases`` and ``fixbench solvers`` (through ``python -m
 fixbench``) ``--runs`` times each, interleaved with the same commands through ``--baseline`` (any
@@ -20,6 +20,8 @@ import sys
 import time
 
 import click
+
+from fixbench.bench.cli_common import run_command
 
 COMMANDS = (("--help",), ("cases",), ("solvers",))
 
@@ -46,7 +48,7 @@ def measure(runs: int, baseline: list[str] | None) -> list[dict]:
     return out
 
 
-PROG = "python -m fixbench.bench.startup"
+PROG = "python -m fixbench.bench.studies.startup"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
@@ -65,8 +67,6 @@ def cli(runs: int, baseline: str | None, as_json: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    from fixbench.bench.cli import run_command
-
     return run_command(cli, argv, PROG)
 
 

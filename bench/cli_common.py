@@ -1,0 +1,67 @@
+"""What every fixbench command line shares: strict JSON output and one way to run a click command.
+
+:mod:`fixbench.bench.cli` (the ``fixbench`` command), :mod:`fixbench.bench.references` and the
+studies of :mod:`fixbench.bench.studies` run their click commands through :func:`run_command`, so a
+user error reads the same everywhere. This module imports no other module of fixbench.bench, so
+that any of them can import it.
+"""
+
+from __future__ import annotations
+
+import json
+
+import click
+import numpy as np
+
+from fixbench.cases.errors import FixbenchError
+
+
+def _strict(obj):
+    """``obj`` with every non-finite float as None, numpy scalars and arrays as plain values."""
+    if isinstance(obj, dict):
+        return {str(k): _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _strict(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if obj is None or isinstance(obj, (str, int, float, bool)):
+        return obj
+    return str(obj)
+
+
+def echo_json(obj) -> None:
+    """Print strict JSON (RFC 8259: no NaN or Infinity; missing numbers are null)."""
+    click.echo(json.dumps(_strict(obj), indent=1, allow_nan=False))
+
+
+def run_command(command: click.Command, argv: list[str] | None, prog_name: str) -> int:
+    """Run a click ``command`` on ``argv`` (default: ``sys.argv[1:]``) as fixbench runs every command
+    line: user errors (bad options, bad case or matrix files, numerical trouble, file-system faults)
+    become one line on stderr and exit code 2, Ctrl-C exit code 130; returns the exit code."""
+    try:
+        rv = command.main(args=argv, prog_name=prog_name, standalone_mode=False)
+        if isinstance(rv, int) and not isinstance(rv, bool):  # click returns an Exit's code here
+            return rv
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.Abort:
+        click.echo("fixbench: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        click.echo(f"fixbench: {exc.format_message()}", err=True)
+        return 2
+    except FixbenchError as exc:
+        click.echo(f"fixbench: {exc}", err=True)
+        return 2
+    except np.linalg.LinAlgError as exc:
+        click.echo(f"fixbench: numerical error: {exc}", err=True)
+        return 2
+    except OSError as exc:  # permission, no space, read-only file system: one line, nothing half-written
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(f"fixbench: {where}{exc.strerror or exc}", err=True)
+        return 2
+    return 0
