@@ -170,6 +170,7 @@ def find_matrix(path: str | Path) -> Path:
 def load_matrix(path: str | Path) -> Matrix:
     """Read and check a matrix file (or a shipped matrix by name, :func:`find_matrix`); every
     problem is a one-line CaseError (file, key, problem)."""
+    from fixbench.solvers.base import ConfigError
     from fixbench.solvers.config import apply_sets
     from fixbench.solvers.registry import get, names
 
@@ -245,6 +246,7 @@ def load_matrix(path: str | Path) -> Matrix:
             item = {"name": item}
         pr = Reader(item, source, key)
         pname = pr.text("name")
+        label = pr.text("label", "")
         cfg = pr.raw("config", {}, (dict,))
         overrides = {}
         if cfg or ":" in pname:  # the class is needed; a known name alone is checked without importing it
@@ -257,6 +259,11 @@ def load_matrix(path: str | Path) -> Matrix:
                 overrides = apply_sets(cls.Config, sets, pname)
             except Exception as exc:
                 raise CaseError(source, f"{key}.config", str(exc)) from None
+            try:  # the config checks its values when made: a bad one is refused before any cell runs
+                cls.Config(**overrides)
+            except ConfigError as exc:
+                entry = f"planner '{pname}'" + (f", label '{label}'" if label else "")
+                raise CaseError(source, f"{key}.config.{exc.field}", f"{exc.problem} ({entry})") from None
         elif pname not in names():
             raise CaseError(source, f"{key}.name", f"unknown planner '{pname}' (known: {', '.join(names())})")
         budget = pr.raw("budget", "matrix", (int, str))
@@ -265,7 +272,6 @@ def load_matrix(path: str | Path) -> Matrix:
         elif budget != "matrix" and (isinstance(budget, str) or budget <= 0):
             raise pr.error("budget", f"must be a positive whole number or \"unlimited\", got {budget!r}")
         cap = pr.integer("max_samples_per_task", None, minimum=1)
-        label = pr.text("label", "")
         only = tuple(_beside(path, c) for c in _list(pr, "cases", str)) if pr.raw("cases", None) is not None else ()
         for c in only:
             if c not in cases:

@@ -23,9 +23,13 @@ Modes: ``per-task`` (reconfigurable fixtures: one layout per task, each judged o
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
+import numbers
+import types
+import typing
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
@@ -46,20 +50,80 @@ class PlannerError(FixbenchError):
     """A planner cannot run as asked (bad config, budget too small for the method, ...)."""
 
 
+class ConfigError(PlannerError):
+    """A config field holds a value its planner cannot use: ``field`` names it, ``problem`` says why
+    (a matrix names its entry and the field)."""
+
+    def __init__(self, field: str, problem: str):
+        self.field, self.problem = field, problem
+        super().__init__(f"{field} {problem}")
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Base of every planner's configuration; subclasses add documented fields.
 
     ``tunable`` declares the fields ``fixbench tune`` may search and how: field -> ("int", lo, hi),
-    ("float", lo, hi), ("log", lo, hi) or ("choice", [values]) (bench/tune.py)."""
+    ("float", lo, hi), ("log", lo, hi) or ("choice", [values]) (bench/tune.py).
+
+    A config checks itself when it is made (as BenchMARL's dataclasses do), so that a bad value is
+    refused before a run starts: here every field against its annotation; a subclass's
+    ``__post_init__`` calls this one, then checks its ranges and choices (:func:`at_least`,
+    :func:`require`)."""
 
     tunable: ClassVar[dict[str, tuple]] = {
     }
+
+    def __post_init__(self) -> None:
+        for name, kind in _field_types(type(self)).items():
+            value = getattr(self, name)
+            if not _fits(value, kind):
+                raise ConfigError(name, f"must be of type {_type_name(kind)}, got {value!r}")
 
     def hash(self) -> str:
         """Short stable hash of the config (for result rows)."""
         text = json.dumps(asdict(self), sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:10]
+
+
+@functools.cache
+def _field_types(cls: type[PlannerConfig]) -> dict[str, Any]:
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in fields(cls)}
+
+
+def _fits(value, kind) -> bool:
+    """Whether ``value`` is of the annotated ``kind``: an int is a float, a bool is no number, NaN no
+    float; ``tuple[X, ...]`` and ``X | None`` look inside; another generic checks its container."""
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, a) for a in args)
+    if origin is tuple:
+        inner = [args[0]] * len(value) if args[-1:] == (Ellipsis,) and isinstance(value, tuple) else args
+        return isinstance(value, tuple) and len(inner) == len(value) and all(map(_fits, value, inner))
+    if kind is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool) and value == value
+    if kind is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    return isinstance(value, origin or kind) if isinstance(origin or kind, type) else True
+
+
+def _type_name(kind) -> str:
+    return kind.__name__ if isinstance(kind, type) else str(kind)
+
+
+def at_least(config: PlannerConfig, low: float, *names: str) -> None:
+    """Refuse (:class:`ConfigError`) the first of the fields ``names`` whose value is below ``low``."""
+    for name in names:
+        value = getattr(config, name)
+        if not value >= low:
+            raise ConfigError(name, f"must be at least {low}, got {value!r}")
+
+
+def require(config: PlannerConfig, name: str, ok: bool, want: str) -> None:
+    """Refuse (:class:`ConfigError`) the field ``name`` unless ``ok``; ``want`` says what it must be."""
+    if not ok:
+        raise ConfigError(name, f"must be {want}, got {getattr(config, name)!r}")
 
 
 class TracedEvaluator(Evaluator):
@@ -199,10 +263,10 @@ class Planner(ABC):
     returns_policy: ClassVar[bool] = False
 
     def __init__(self, config: PlannerConfig | None = None, **overrides: Any):
-        config = config if config is not None else self.Config()
-        try:
+        try:  # the config checks itself when made (PlannerConfig)
+            config = config if config is not None else self.Config()
             self.config = replace(config, **overrides) if overrides else config
-        except TypeError as exc:
+        except (TypeError, ConfigError) as exc:
             raise PlannerError(f"planner '{self.name}': {exc}") from None
 
     @abstractmethod

@@ -77,13 +77,14 @@ from scipy.spatial import cKDTree
 from fixbench.cases import cache
 from fixbench.cases.files import write_text_atomic
 from fixbench.cases.problem import Problem, load_problem
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
 from fixbench.solvers.local import revise, revise_budget
 from fixbench.solvers.registry import available, get, register
 
 TASK_DIMS = 4
 _MEMORY: dict[tuple, dict] = {}  # the in-memory library of this process (one bootstrap setting)
 FORMAT = 1
+EXCLUDE = ("part", "task", "none")  # CBRConfig.exclude
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,13 @@ class CBRConfig(PlannerConfig):
     """With ``retain``: n > 0, a task's k nearest library cases and, beside them, the n nearest of the
     run's retained cases (which then never crowd the library out); 0, the k nearest of both together
     (on the paper's wing panel the retained cases took every place and mean regret was 10 % higher)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "bootstrap_budget", "k")
+        at_least(self, 0, "part_weight", "material_weight", "task_weight", "samples_per_task", "retained_k")
+        at_least(self, -1, "polish_samples")
+        require(self, "exclude", self.exclude in EXCLUDE, f"one of {', '.join(EXCLUDE)}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -325,12 +333,6 @@ class CaseBasedReasoning(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        if cfg.k < 1:
-            raise PlannerError(f"planner 'cbr': k must be at least 1, got {cfg.k}")
-        if cfg.retained_k < 0:
-            raise PlannerError(f"planner 'cbr': retained_k must be 0 or more, got {cfg.retained_k}")
-        if cfg.exclude not in ("part", "task", "none"):
-            raise PlannerError(f"planner 'cbr': exclude must be 'part', 'task' or 'none', got '{cfg.exclude}'")
         library, where = self._library(cfg)
         me = (problem.name, problem.spec.material.name)
         entries = [e for e in library["entries"]

@@ -80,7 +80,15 @@ from pymoo.termination.robust import RobustTermination
 from scipy.spatial import cKDTree
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    TracedEvaluator,
+    at_least,
+    require,
+    require_budget,
+    split_budget,
+)
 from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import warm_layouts
 
@@ -178,6 +186,11 @@ class EvolutionConfig(PlannerConfig):
     """Warm start: the first population of a task holds the best layouts of this many solved tasks
     nearest by task features (0: random populations only)."""
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "min_generations", "evals_per_task")
+        at_least(self, 0, "soft_power", "stall_generations", "transfer")
+
 
 class _Seeded(Sampling):
     """A sampling whose first individuals are given (warm starts) and the rest drawn by ``base``."""
@@ -216,6 +229,13 @@ class GAConfig(EvolutionConfig):
 
     mutation_eta: float = 3.0
     """Polynomial-mutation distribution index: small makes large jumps in a gene."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 2, "pop_size")
+        require(self, "crossover_prob", 0 <= self.crossover_prob <= 1, "in [0, 1]")
+        require(self, "crossover_eta", self.crossover_eta > 0, "positive")
+        require(self, "mutation_eta", self.mutation_eta > 0, "positive")
 
 
 @register
@@ -275,6 +295,12 @@ class PSOConfig(EvolutionConfig):
 
     max_velocity_rate: float = 0.2
     """Largest step per generation as a fraction of the agent's box side."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 2, "pop_size")
+        at_least(self, 0, "w", "c1", "c2")
+        require(self, "max_velocity_rate", self.max_velocity_rate > 0, "positive")
 
 
 @register

@@ -50,7 +50,15 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from fixbench.cases.problem import Problem, decode_layouts
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    PlannerError,
+    TracedEvaluator,
+    at_least,
+    require,
+    require_budget,
+)
 from fixbench.solvers.registry import register
 
 #: measured components of each field, in the order of the field's measurement rows
@@ -78,7 +86,14 @@ class ExactConfig(PlannerConfig):
     """Largest relative gap a MILP result is called proven with. HiGHS stops at a relative MIP gap of
     1e-9, but its feasibility tolerances (1e-7 absolute) leave round-off of a few 1e-9 between its
     bound and the oracle's value of an optimal layout (measured 2.3e-9); the gap itself is always
-    reported."""
+    reported. A negative gap proves nothing."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 0, "max_enumeration", "max_milp_columns")
+        at_least(self, 1, "chunk")
+        require(self, "time_limit_s", self.time_limit_s > 0, "positive")
+        require(self, "big_m_factor", self.big_m_factor > 0, "positive")
 
 
 @register

@@ -107,9 +107,10 @@ from fixbench.cases.problem import Problem
 from fixbench.solvers.base import (
     Planner,
     PlannerConfig,
-    PlannerError,
     TracedEvaluator,
+    at_least,
     random_layouts,
+    require,
     require_budget,
     split_budget,
 )
@@ -185,6 +186,13 @@ class GPUCBConfig(PlannerConfig):
 
     threads: int = 1
     """torch intra-op threads during the run (0: torch's setting); restored afterwards."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "window", "initial_random", "batch", "fit_every", "fit_tasks", "fit_iters", "max_sweeps",
+                 "screen", "subset", "pool", "held_out_sweeps", "samples_per_task")
+        at_least(self, 0, "max_rounds", "transfer", "tries", "threads")
+        require(self, "beta", self.beta > 0, "positive")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -396,12 +404,6 @@ class GPUCB(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        if min(cfg.window, cfg.batch, cfg.max_sweeps, cfg.fit_every, cfg.fit_tasks, cfg.screen, cfg.pool,
-               cfg.held_out_sweeps) < 1:
-            raise PlannerError(f"planner '{self.name}': window, batch, max_sweeps, fit_every, fit_tasks, screen, "
-                               "pool and held_out_sweeps must be at least 1")
-        if not cfg.beta > 0:
-            raise PlannerError(f"planner '{self.name}': beta must be positive, got {cfg.beta}")
         require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
         with torch_run(cfg.threads):
                 return self._run(problem, ev, rng)

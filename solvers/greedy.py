@@ -59,7 +59,15 @@ from typing import ClassVar
 import numpy as np
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    TracedEvaluator,
+    at_least,
+    random_layouts,
+    require_budget,
+    split_budget,
+)
 from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import warm_layouts
 
@@ -82,6 +90,11 @@ class GreedyConfig(PlannerConfig):
     transfer: int = 0
     """Warm start: the first descent of a task starts from the best layouts of this many solved tasks
     nearest by task features (0: every descent starts at random)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "restarts")
+        at_least(self, 0, "soft_power", "transfer")
 
 
 @register

@@ -37,7 +37,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    TracedEvaluator,
+    at_least,
+    random_layouts,
+    require,
+    require_budget,
+    split_budget,
+)
 from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import warm_layouts
 
@@ -87,6 +96,12 @@ class LocalConfig(PlannerConfig):
 
     samples_per_task: int = 2000
     """Samples per task (per layout judged on all tasks in shared mode) when the budget is unlimited."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "neighbours", "kick_agents", "starts", "samples_per_task")
+        at_least(self, 0, "explore", "soft_power", "transfer")
+        require(self, "start_share", 0 <= self.start_share <= 1, "in [0, 1]")
 
 
 @register

@@ -60,7 +60,7 @@ import torch
 from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
 from fixbench.solvers.marl_engine import Learner, Update
 from fixbench.solvers.registry import register
 from fixbench.solvers.torch_run import torch_run
@@ -149,17 +149,39 @@ class NashQConfig(PlannerConfig):
     save_path: str = ""
     """If set, torch.save(state_dict) of the trained Q-networks to this file."""
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_learner(self)
+        at_least(self, 1, "max_sweeps")
+        require(self, "alpha", 0 < self.alpha <= 1, "in (0, 1]")
+        require(self, "grad_clip", self.grad_clip > 0, "positive")
+        require(self, "tau", 0 < self.tau <= 1, "in (0, 1]")
+        require(self, "reward", self.reward in REWARDS, f"one of {', '.join(REWARDS)}")
+        require(self, "device", self.device in ("cpu", "cuda"), "'cpu' or 'cuda'")
+        require(self, "optima", all(u > 0 for u in self.optima), "positive deformations (m)")
+
+
+def check_learner(cfg: PlannerConfig) -> None:
+    """The checks of the fields nashq/iql and vdn share (same names, same meanings)."""
+    at_least(cfg, 1, "episodes", "hidden", "batch", "capacity")
+    at_least(cfg, 2, "scale_samples")
+    at_least(cfg, 0, "threads")
+    require(cfg, "lr", cfg.lr > 0, "positive")
+    require(cfg, "eps_start", 0 <= cfg.eps_start <= 1, "in [0, 1]")
+    require(cfg, "eps_end", 0 <= cfg.eps_end <= 1, "in [0, 1]")
+    require(cfg, "eps_decay", cfg.eps_decay > 0, "positive")
+    require(cfg, "train_tasks", all(t >= 0 for t in cfg.train_tasks), "task indices (0 or more)")
+    require(cfg, "train_fraction", 0 < cfg.train_fraction <= 1, "in (0, 1]")
+
 
 def train_ids(problem: Problem, cfg: NashQConfig) -> np.ndarray:
     """Training task indices from ``train_tasks`` or ``train_fraction`` (evenly spaced)."""
     t = problem.n_tasks
     if cfg.train_tasks:
         ids = np.unique(np.asarray(cfg.train_tasks, dtype=np.int64))
-        if ids.min() < 0 or ids.max() >= t:
+        if ids.max() >= t:
             raise PlannerError(f"train_tasks must be in 0..{t - 1}")
         return ids
-    if not 0 < cfg.train_fraction <= 1:
-        raise PlannerError(f"train_fraction must be in (0, 1], got {cfg.train_fraction}")
     k = max(1, round(cfg.train_fraction * t))
     return np.unique(np.round(np.linspace(0, t - 1, k)).astype(np.int64))
 
@@ -176,15 +198,8 @@ class _QPlanner(Planner):
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         t_start = time.perf_counter()
-        if cfg.reward not in REWARDS:
-            raise PlannerError(f"planner '{self.name}': reward must be one of {', '.join(REWARDS)}, "
-                               f"got '{cfg.reward}'")
-        if cfg.scale_samples < 2:
-            raise PlannerError(f"planner '{self.name}': scale_samples must be at least 2, got {cfg.scale_samples}")
-        if cfg.device == "cuda" and not torch.cuda.is_available():
+        if cfg.device == "cuda" and not torch.cuda.is_available():  # the machine's, not the config's fault
             raise PlannerError(f"planner '{self.name}': device 'cuda' asked but CUDA is not available")
-        if cfg.device not in ("cpu", "cuda"):
-            raise PlannerError(f"planner '{self.name}': device must be 'cpu' or 'cuda', got '{cfg.device}'")
         if cfg.optima and len(cfg.optima) != problem.n_tasks:
             raise PlannerError(f"optima: {len(cfg.optima)} values for {problem.n_tasks} tasks")
         device = torch.device(cfg.device)

@@ -46,7 +46,7 @@ import numpy as np
 import optuna
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, require_budget, split_budget
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, at_least, require_budget, split_budget
 from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import warm_layouts
 
@@ -83,6 +83,11 @@ class OptunaConfig(PlannerConfig):
     transfer: int = 0
     """Warm start: each task's study first evaluates the best layouts of this many solved tasks nearest
     by task features (0: none)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "samples_per_task", "n_ei_candidates", "stall_asks")
+        at_least(self, 0, "n_startup_trials", "soft_power", "transfer")
 
 
 @register

@@ -74,7 +74,15 @@ import scipy.sparse as sp
 
 from fixbench.cases.errors import BudgetExhausted, CaseError
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, require_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    PlannerError,
+    TracedEvaluator,
+    at_least,
+    require,
+    require_budget,
+)
 from fixbench.solvers.local import revise, revise_budget
 from fixbench.solvers.registry import register
 
@@ -127,6 +135,15 @@ class QPConfig(PlannerConfig):
     max_iter: int = 20000
     """OSQP iteration limit per solve."""
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(self, "big_m", self.big_m > 0, "positive")
+        require(self, "m_scales", len(self.m_scales) > 0 and min(self.m_scales) > 0, "positive numbers (at least one)")
+        require(self, "eps", self.eps > 0, "positive")
+        at_least(self, 0, "field_weight", "ridge", "samples_per_task", "max_candidates_per_agent", "max_rows")
+        at_least(self, 1, "pool", "max_iter")
+        at_least(self, -1, "polish_samples")
+
 
 @register
 class QPPlanner(Planner):
@@ -136,8 +153,6 @@ class QPPlanner(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        if not cfg.m_scales or min(cfg.m_scales) <= 0 or cfg.big_m <= 0:
-            raise PlannerError(f"planner '{self.name}': big_m and m_scales must be positive")
         sets = screened_sets(problem, self.screen_limit(problem))
         cand = np.concatenate(sets)
         order = np.argsort(cand)

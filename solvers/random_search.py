@@ -7,7 +7,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, random_layouts, require_budget, split_budget
+from fixbench.solvers.base import (
+    Planner,
+    PlannerConfig,
+    TracedEvaluator,
+    at_least,
+    random_layouts,
+    require_budget,
+    split_budget,
+)
 from fixbench.solvers.registry import register
 
 
@@ -18,6 +26,10 @@ class RandomConfig(PlannerConfig):
 
     samples_per_task: int = 200
     """Samples per task when the budget is unlimited."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "batch", "samples_per_task")
 
 
 @register

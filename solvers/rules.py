@@ -86,7 +86,7 @@ import shapely
 
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import CaseSpec, Task
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator
+from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, require
 from fixbench.solvers.registry import register
 
 
@@ -104,6 +104,10 @@ class RulesConfig(PlannerConfig):
     near_load: bool = True
     """Rule 1: place one pad as near the load point as the robots' options allow (False: all pads
     by rule 2)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(self, "load_weight", 0 <= self.load_weight < 1, "in [0, 1)")
 
 
 def load_point(task: Task) -> np.ndarray | None:

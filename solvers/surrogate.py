@@ -68,9 +68,10 @@ from fixbench.cases.problem import Problem
 from fixbench.solvers.base import (
     Planner,
     PlannerConfig,
-    PlannerError,
     TracedEvaluator,
+    at_least,
     random_layouts,
+    require,
     require_budget,
     split_budget,
 )
@@ -134,6 +135,13 @@ class SurrogateConfig(PlannerConfig):
 
     threads: int = 1
     """torch intra-op threads during the run (0: torch's setting); restored afterwards."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "ensemble", "hidden", "initial_random", "batch", "minibatch", "max_sweeps",
+                 "samples_per_task")
+        at_least(self, 0, "max_rounds", "train_steps", "weight_decay", "transfer", "tries", "threads")
+        require(self, "lr", self.lr > 0, "positive")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -262,9 +270,6 @@ class SurrogateTS(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        if min(cfg.ensemble, cfg.hidden, cfg.minibatch, cfg.batch, cfg.max_sweeps) < 1:
-            raise PlannerError(f"planner '{self.name}': ensemble, hidden, minibatch, batch and max_sweeps "
-                               "must be at least 1")
         require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
         gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
         with torch_run(cfg.threads):

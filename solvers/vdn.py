@@ -56,8 +56,8 @@ from torch import nn
 from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator
-from fixbench.solvers.nashq import train_ids
+from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
+from fixbench.solvers.nashq import check_learner, train_ids
 from fixbench.solvers.registry import register
 from fixbench.solvers.torch_run import torch_run
 
@@ -127,6 +127,12 @@ class VDNConfig(PlannerConfig):
     threads: int = 1
     """torch intra-op threads during the run (0: torch's setting); restored afterwards. 1: the ops are
     small, and spinning threads on a shared, loaded machine cost more than they gain (as nashq)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_learner(self)
+        at_least(self, 1, "layers", "update_every", "greedy_chunk")
+        require(self, "weight_decay", self.weight_decay >= 0, "0 or more")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -224,15 +230,6 @@ class VDN(Planner):
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         t_start = time.perf_counter()
-        for field, value, low in (("episodes", cfg.episodes, 1), ("hidden", cfg.hidden, 1), ("layers", cfg.layers, 1),
-                                  ("batch", cfg.batch, 1), ("update_every", cfg.update_every, 1),
-                                  ("capacity", cfg.capacity, 1), ("scale_samples", cfg.scale_samples, 2),
-                                  ("greedy_chunk", cfg.greedy_chunk, 1), ("threads", cfg.threads, 0)):
-            if value < low:
-                raise PlannerError(f"planner '{self.name}': {field} must be at least {low}, got {value}")
-        if not (0 <= cfg.eps_end <= 1 and 0 <= cfg.eps_start <= 1 and cfg.eps_decay > 0):
-            raise PlannerError(f"planner '{self.name}': eps_start and eps_end must be in [0, 1] and eps_decay "
-                               f"positive, got {cfg.eps_start}, {cfg.eps_end}, {cfg.eps_decay}")
         # the held-out track restricts the evaluator to the training tasks; else the config chooses
         ids = ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
         n_train = len(ids)
