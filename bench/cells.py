@@ -60,14 +60,17 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
     """The regret reference of a problem: the ``exact`` planner's optimum (proven, or best known with
     its MILP gap); where ``exact`` refuses (too large), the shipped catalog reference of the case
     (:mod:`fixbench.cases.references`: the portfolio's best-known layouts), restricted to the problem's tasks.
-    ``source`` says which was used."""
+    ``source`` says which was used; ``case_fingerprint`` which case file, material and agent count it
+    was computed on (merged reports compare it: :mod:`fixbench.bench.merge`)."""
+    from fixbench.cases.references import case_fingerprint
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
     p = problem_for(case, material, agents, tasks)
     ref = {"key": reference_key(case, material, agents, tasks), "case": case, "material":
            p.spec.material.name, "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "",
-           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0, "source": ""}
+           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0, "source": "",
+           "case_fingerprint": case_fingerprint(case, p.spec.material.name, p.n_agents)}
     t0 = time.perf_counter()
     try:
         exact = get("exact")()

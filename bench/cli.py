@@ -344,19 +344,27 @@ def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
 
 
 @cli.command()
-@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("run_dirs", metavar="RUN_DIR [RUN_DIR ...]", nargs=-1,
+                type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--with", "with_runs", multiple=True, metavar="NAME",
+              help="Merge the committed run results/NAME too (paper, sweep, reference, tiny); repeatable.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),
-              help="Report folder (default: RUN_DIR/report).")
+              help="Report folder (default: the first RUN_DIR's report/).")
 @click.option("--no-fields", is_flag=True,
               help="Skip the deformation-field pictures (they rebuild each case's FE model).")
 @click.option("--readme", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Also refresh this README's copies of the report's tables (its <!-- table: PATH --> blocks).")
-def report(run_dir, out, no_fields, readme) -> None:
-    """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR."""
+def report(run_dirs, with_runs, out, no_fields, readme) -> None:
+    """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR; of several runs of
+    one protocol (RUN_DIRs and --with runs) merged into one report."""
+    from fixbench.bench.merge import committed_run
     from fixbench.bench.report import make_report
     from fixbench.bench.tables import refresh_readme
 
-    res = make_report(run_dir, out, fields=not no_fields)
+    runs = [*run_dirs, *(committed_run(name) for name in with_runs)]
+    if not runs:
+        raise click.UsageError("give a RUN_DIR or --with NAME")
+    res = make_report(runs, out, fields=not no_fields)
     click.echo(f"wrote {res['report']} ({len(res['tables'])} tables, {len(res['figures'])} figures"
                + (f", {len(res['notes'])} skipped" if res["notes"] else "") + ")")
     if readme is not None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
@@ -66,6 +67,7 @@ from fixbench.bench.figures import (  # noqa: E402
     sweep_figure,
     violin_figure,
 )
+from fixbench.bench.merge import Runs, load_runs, run_names  # noqa: E402
 from fixbench.bench.provenance import host_key  # noqa: E402
 from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
 from fixbench.bench.store import load_curves, load_results, load_traces  # noqa: E402
@@ -78,7 +80,6 @@ from fixbench.bench.tables import (  # noqa: E402
     show_summary,
     summary_table,
 )
-from fixbench.cases.errors import CaseError  # noqa: E402
 
 NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
            "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
@@ -257,38 +258,34 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
     return sweep
 
 
-def make_report(run_dir: str | Path, out: str | Path | None = None, fields: bool = True) -> dict:
-    """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``).
+def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | None = None,
+                fields: bool = True) -> dict:
+    """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``); several run
+    directories of one protocol make one merged report (:mod:`fixbench.bench.merge`; default ``out``:
+    the first one's ``report``).
 
     Returns ``{"report": path, "tables": {name: csv}, "figures": {name: png}, "notes": [...]}``;
     ``notes`` lists what was skipped and why (also written into report.md).
     """
-    run_dir = Path(run_dir)
-    if not (run_dir / "rows").is_dir():
-        raise CaseError(str(run_dir), "", "is not a run directory (it has no rows/ folder)")
-    out = Path(out) if out is not None else run_dir / "report"
+    runs = load_runs([run_dir] if isinstance(run_dir, (str, Path)) else list(run_dir))
+    rows, refs = runs.rows, runs.refs
+    out = Path(out) if out is not None else runs.paths[0] / "report"
     w = _Writer(out)
-    rows = load_rows(run_dir)
     if rows.attrs.get("damaged"):
         w.notes.append(f"{rows.attrs['damaged']} damaged row files: not read (each named on stderr); "
                        "`fixbench run` moves them aside and recomputes their cells")
-    refs = load_references(run_dir)
-    name = run_dir.name
-    try:
-        import tomllib
-
-        name = tomllib.loads((run_dir / "matrix.toml").read_text()).get("name", name)
-    except (OSError, ValueError):
-        pass
+    names = run_names(runs.paths)
     labels = sorted(rows["label"].unique())
     colors = palette(labels)
     cases = list(dict.fromkeys(rows["case"]))
-    w.md += [f"# fixbench report: {name}", "",
-             f"Run directory `{run_dir}`: {len(rows)} cells ({int((~rows['ok']).sum())} failed), "
+    where = (f"Run directory `{runs.paths[0]}`" if len(runs.paths) == 1 else
+             "Run directories " + ", ".join(f"`{p}`" for p in runs.paths) + " merged (one protocol)")
+    w.md += [f"# fixbench report: {' + '.join(names)}", "",
+             f"{where}: {len(rows)} cells ({int((~rows['ok']).sum())} failed), "
              f"cases {', '.join(map(str, cases)) or '-'}, planners {', '.join(labels) or '-'}, "
              f"{len(refs)} regret reference(s).", ""] + _hosts(rows)
     sweep, profile = _table_sections(w, rows, refs)
-    _figure_sections(w, run_dir, rows, refs, colors, sweep, profile, fields)
+    _figure_sections(w, runs, rows, refs, colors, sweep, profile, fields)
     if w.notes:
         w.md += ["## Skipped", ""] + [f"- {n}" for n in w.notes] + [""]
     path = out / "report.md"
@@ -356,9 +353,10 @@ def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.Data
     return sweep, profile
 
 
-def _figure_sections(w: _Writer, run_dir: Path, rows: pd.DataFrame, refs: dict, colors: dict,
+def _figure_sections(w: _Writer, runs: Runs, rows: pd.DataFrame, refs: dict, colors: dict,
                      sweep: pd.DataFrame, profile: tuple | None, fields: bool) -> None:
-    """The figures, each skipped with its reason where the run lacks what it draws."""
+    """The figures, each skipped with its reason where the run lacks what it draws (traces and curves
+    read from ``runs``, those of the cells its ``rows`` hold)."""
     ok = rows[rows["ok"]].copy()
     ok_cases = list(dict.fromkeys(ok["case"]))
     w.md += ["## Figures", ""]
@@ -366,7 +364,7 @@ def _figure_sections(w: _Writer, run_dir: Path, rows: pd.DataFrame, refs: dict, 
         w.figure("sweep", sweep_figure(sweep, colors),
                  "Budget sweep: relative regret against the reference (%, log) against samples per task "
                  "(log), one panel a case; mean over cells with its 95 % CI as a band.")
-    traces = load_traces(run_dir)
+    traces = runs.frames(load_traces)
     recs = []
     if ok.empty:
         w.skip("Anytime curves and runtime ECDFs", "no successful cells")
@@ -405,7 +403,7 @@ def _figure_sections(w: _Writer, run_dir: Path, rows: pd.DataFrame, refs: dict, 
                  "per cell).")
     else:
         w.skip("Violin plot", "no successful cell has a regret reference")
-    curves = load_curves(run_dir)
+    curves = runs.frames(load_curves)
     cells = learner_cells(curves, ok)
     if cells:
         w.figure("figure4", figure4(learner_runs(ok, curves, cells, refs), colors),

@@ -20,7 +20,7 @@ from fixbench.bench.store import load_results
 from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"
-RUNS = ["reference", "paper"]
+RUNS = ["reference", "paper", "tiny"]
 
 
 def _rows(run: str):
