@@ -149,6 +149,8 @@ class CBRConfig(PlannerConfig):
         at_least(self, 0, "part_weight", "material_weight", "task_weight", "samples_per_task", "retained_k")
         at_least(self, -1, "polish_samples")
         require(self, "exclude", self.exclude in EXCLUDE, f"one of {', '.join(EXCLUDE)}")
+        require(self, "bootstrap", bool(self.library or self.bootstrap), "cases to build the library from when no "
+                "library file is named (set library=PATH or bootstrap)")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -398,8 +400,6 @@ class CaseBasedReasoning(Planner):
                               per_task_budget=cfg.bootstrap_budget)
             return load_library(path), str(path)
         key = (cfg.bootstrap, cfg.bootstrap_budget)
-        if not cfg.bootstrap:
-            raise PlannerError("planner 'cbr': no library: set library=PATH or bootstrap cases")
         if key not in _MEMORY:
             _MEMORY.clear()
             _MEMORY[key] = bootstrap_library(cfg.bootstrap, cfg.bootstrap_budget)

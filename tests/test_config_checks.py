@@ -18,7 +18,7 @@ from fixbench.solvers.registry import BUILTIN
 
 #: (planner, field, a value its config refuses): every built-in planner at least once
 BAD = [
-    ("cbr", "k", 0), ("cbr", "exclude", "parts"), ("cbr", "polish_samples", -2),
+    ("cbr", "k", 0), ("cbr", "exclude", "parts"), ("cbr", "polish_samples", -2), ("cbr", "bootstrap", ()),
     ("exact", "chunk", 0), ("exact", "time_limit_s", 0.0),
     ("ga", "crossover_prob", 1.5), ("ga", "min_generations", 0),
     ("gp-ucb", "beta", 0.0), ("gp-ucb", "window", 0),
