@@ -264,6 +264,8 @@ def load_matrix(path: str | Path) -> Matrix:
             except ConfigError as exc:
                 entry = f"planner '{pname}'" + (f", label '{label}'" if label else "")
                 raise CaseError(source, f"{key}.config.{exc.field}", f"{exc.problem} ({entry})") from None
+            except Exception as exc:  # a plugin's own check, with an exception of its choosing
+                raise CaseError(source, f"{key}.config", f"{type(exc).__name__}: {exc} (planner '{pname}')") from None
         elif pname not in names():
             raise CaseError(source, f"{key}.name", f"unknown planner '{pname}' (known: {', '.join(names())})")
         budget = pr.raw("budget", "matrix", (int, str))

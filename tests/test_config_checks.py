@@ -111,3 +111,39 @@ def test_run_refuses_a_matrix_with_a_bad_config_value_before_any_cell(tmp_path, 
     with pytest.raises(CaseError) as refused:
         load_matrix(path)
     assert refused.value.source == str(path) and refused.value.key == f"planners[1].config.{field}"
+
+
+PLUGIN = '''
+from dataclasses import dataclass
+
+from fixbench.solvers import Planner, PlannerConfig
+
+
+class Odd(Planner):
+    name = "odd"
+
+    @dataclass(frozen=True)
+    class Config(PlannerConfig):
+        width: int = 2
+
+        def __post_init__(self):
+            super().__post_init__()
+            if self.width % 2:
+                raise ValueError(f"width must be even, got {self.width}")
+
+    def plan(self, problem, ev, rng, mode):
+        raise AssertionError("never reached: the matrix is refused first")
+'''
+
+
+def test_run_refuses_a_plugin_config_that_raises_its_own_exception(tmp_path, capsys, monkeypatch):
+    (tmp_path / "odd_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    path = tmp_path / "bad.toml"
+    path.write_text(MATRIX.format(name="odd_plugin:Odd", field="width", value="3", label=""))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    problem = "ValueError: width must be even, got 3 (planner 'odd_plugin:Odd')"
+    assert err == f"fixbench: {path}: planners[1].config: {problem}"
+    assert not out.exists()
