@@ -262,8 +262,6 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
     from fixbench.solvers.config import apply_sets
     from fixbench.solvers.registry import get
 
-    if budget is not None and budget <= 0:
-        raise click.BadParameter(f"must be positive, got {budget}", param_hint="--budget")
     cls = get(planner_name)
     planner = cls(**apply_sets(cls.Config, sets, cls.name))
     problem = _problem(case, material, agents, fixtures_per_agent)

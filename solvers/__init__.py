@@ -11,7 +11,7 @@ import importlib
 #: public name -> the module that defines it
 _WHERE = {
     "MODES": "base", "PlanResult": "base", "Planner": "base", "PlannerConfig": "base", "PlannerError": "base",
-    "TracedEvaluator": "base",
+    "Share": "base", "TracedEvaluator": "base",
     "available": "registry", "get": "registry", "register": "registry",
 }
 __all__ = sorted(_WHERE)

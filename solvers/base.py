@@ -31,13 +31,15 @@ import numbers
 import types
 import typing
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
-from fixbench.cases.errors import CaseError, FixbenchError
+from fixbench.cases.errors import FixbenchError
 from fixbench.cases.problem import Deformation, Evaluator, Problem
+from fixbench.solvers.transfer import fill_held_out, warm_layouts
 
 MODES = ("per-task", "shared")
 #: columns of an anytime trace (:class:`TracedEvaluator`; stored by the harness as they are): after the
@@ -251,6 +253,27 @@ class PlanResult:
                               "reward": float(self.reward[t])} for t in range(len(self.layouts))]}
 
 
+@dataclass(frozen=True)
+class Share:
+    """One search's share of a planner's budget, as :meth:`Planner.drive` hands it to the search."""
+
+    task: int | None
+    """The task searched; None: the shared layout, one layout for every task judged by its worst."""
+
+    score: Callable[[np.ndarray], np.ndarray]
+    """(L, n_agents) layouts -> one value each to minimise (the max |u|, or the soft max with the
+    driver's ``soft_power``; the worst task for the shared layout): counted, and the evaluator keeps
+    the best layout by the true max."""
+
+    allowance: int | float
+    """Layouts the search may evaluate: its share of the budget (a shared layout costs n_tasks
+    samples), or the planner's own number when the budget is unlimited."""
+
+    warm: np.ndarray
+    """(k, n_agents) layouts to start from: the best layouts of the solved tasks nearest this one
+    (``transfer``; empty without it, and for the shared layout)."""
+
+
 class Planner(ABC):
     """Base class of every planner (see the module docstring and README, "Write your own planner")."""
 
@@ -277,19 +300,43 @@ class Planner(ABC):
         Learn only through ``ev`` (every evaluation is counted); draw randomness only from ``rng``.
         """
 
+    def drive(self, problem: Problem, ev: TracedEvaluator, mode: str, search: Callable[[Share], Any],
+              unlimited: int | float, soft_power: float | None = None, transfer: int = 0) -> tuple[np.ndarray, list]:
+        """The budget loop of a search planner: ``search`` once a task, or once on the shared layout.
+
+        Per-task mode: the tasks ``ev`` allows, in order, each with an equal share of the budget
+        (:func:`split_budget`; ``unlimited`` layouts each when the budget is unlimited) and, with
+        ``transfer`` k > 0, the best layouts of the k solved tasks nearest it (read when its turn
+        comes, :func:`~fixbench.solvers.transfer.warm_layouts`); the layouts are each task's best
+        evaluated. Shared mode: one search on the worst task, the budget divided by n_tasks (a
+        layout costs n_tasks samples); the layouts are the best shared layout, on every task. A
+        budget that pays for no layout on some task (no shared layout) is a :class:`PlannerError`.
+
+        Returns (layouts, what ``search`` returned, one entry a search)."""
+        if mode == "shared":
+            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
+            allowance = unlimited if ev.budget is None else int(ev.remaining // problem.n_tasks)
+            no_warm = np.empty((0, problem.n_agents), dtype=np.int64)
+            stats = [search(Share(None, functools.partial(ev.shared_fitness, soft_power=soft_power), allowance,
+                                  no_warm))]
+            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), stats
+        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
+        stats = []
+        for task, allowance in zip(ev.tasks.tolist(), split_budget(ev.budget, len(ev.tasks), unlimited)):
+            warm = warm_layouts(problem, ev.best, ev.best_layout, task, transfer)
+            score = functools.partial(ev.fitness, task, soft_power=soft_power)
+            stats.append(search(Share(task, score, allowance, warm)))
+        return ev.best_layout.copy(), stats
+
     def solve(self, problem: Problem, budget: int | None, seed: int = 0,
               mode: str = "per-task", train_tasks=None) -> PlanResult:
         """Plan, check and score. ``train_tasks`` (held-out track, per-task mode): the planner may
         evaluate only these tasks and acts on the others with zero samples; a layout it leaves at -1
         on a held-out task becomes the best layout of the nearest training task
         (:func:`fixbench.solvers.transfer.fill_held_out`), and the objective is taken over the held-out tasks."""
-        from fixbench.solvers.transfer import fill_held_out
-
         if mode not in self.modes:
             raise PlannerError(f"planner '{self.name}' does not support mode '{mode}' "
                                f"(supports: {', '.join(self.modes)})")
-        if budget is not None and budget <= 0:
-            raise CaseError("--budget", "", f"must be positive, got {budget}")
         held = None
         if train_tasks is not None:
             if mode != "per-task":
@@ -297,7 +344,7 @@ class Planner(ABC):
             held = np.setdiff1d(np.arange(problem.n_tasks), np.asarray(train_tasks, dtype=np.int64))
             if len(held) == 0:
                 raise PlannerError("the held-out track needs at least one task outside the training tasks")
-        ev = TracedEvaluator(problem, budget, train_tasks)
+        ev = TracedEvaluator(problem, budget, train_tasks)  # refuses a budget that is not positive
         layouts, info = self.plan(problem, ev, np.random.default_rng(seed), mode)
         layouts = np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents)
         if held is not None:

@@ -1,25 +1,28 @@
 """Evolutionary planners on pymoo: a genetic algorithm (``ga``) and particle swarm (``pso``).
 
-Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem` (:class:`PopulationProblem`) whose
-``_evaluate`` decodes a whole population into layouts and makes one counted oracle call for it, so
-every generation is one batched call: ``ev.evaluate(task, layouts)`` in per-task mode (one sample a
+Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem`
+(:class:`~fixbench.solvers.pymoo_problem.PopulationProblem`) whose ``_evaluate`` decodes a whole
+population into layouts and makes one counted oracle call for it, so every generation is one
+batched call: ``ev.evaluate(task, layouts)`` in per-task mode (one sample a
 layout), ``ev.evaluate_shared(layouts)`` in shared mode (objective: the worst task; ``n_tasks``
 samples a layout).
 
-Encodings:
+Encodings (:mod:`fixbench.solvers.pymoo_problem` owns them):
 
-- ``ga``: one integer gene per agent, the position in that agent's own action set
-  (``0..len(set)-1``); integer random sampling, SBX crossover and polynomial mutation with rounding
-  repair (pymoo's recipe for integer variables), duplicates eliminated.
-- ``pso``: mapping (a), continuous positions in the plane. Each agent has a point ``(x, y)``
-  (2 variables an agent) bounded by its set's bounding box, padded by half the median
-  nearest-neighbour spacing of all candidates (so border candidates get cells of the usual size
-  and a set on a line still has a box of positive width). A point is snapped to the agent's nearest
-  candidate with a KD-tree per agent. Why not (b), a continuous index rounded: the candidate order
-  is not spatially meaningful (a grid is numbered row by row, so index i+1 can be across the part),
-  and a velocity in index space would jump between rows; in the plane, neighbours in space are
-  neighbours in the search, which is what the deformation field is smooth in. A robot that places
-  m pads has a point per pad (2 m variables, ``Problem.points``), snapped to its nearest action.
+- ``ga`` (:func:`~fixbench.solvers.pymoo_problem.integer_encoding`): one integer gene per agent, the
+  position in that agent's own action set (``0..len(set)-1``); integer random sampling, SBX
+  crossover and polynomial mutation with rounding repair (pymoo's recipe for integer variables),
+  duplicates eliminated.
+- ``pso`` (:func:`~fixbench.solvers.pymoo_problem.plane_encoding`): mapping (a), continuous
+  positions in the plane. Each agent has a point ``(x, y)`` (2 variables an agent) bounded by its
+  set's bounding box, padded by half the median nearest-neighbour spacing of all candidates (so
+  border candidates get cells of the usual size and a set on a line still has a box of positive
+  width). A point is snapped to the agent's nearest candidate with a KD-tree per agent. Why not (b),
+  a continuous index rounded: the candidate order is not spatially meaningful (a grid is numbered
+  row by row, so index i+1 can be across the part), and a velocity in index space would jump between
+  rows; in the plane, neighbours in space are neighbours in the search, which is what the
+  deformation field is smooth in. A robot that places m pads has 2 m variables (its pads' centre
+  and offsets, from ``Problem.points``), snapped to its nearest action.
 
 Fitness: by default the *soft max* of |u|, the power mean over the measurement points with
 ``soft_power`` (same solve, no extra sample; why: see :mod:`fixbench.solvers.greedy`), the max itself with
@@ -33,16 +36,17 @@ population on what is left of its allowance. A swarm collapses onto one layout l
 large allowance is spent (PSO on bus_panel_small stopped improving after ~15 of 210 generations
 and ended 2-12 % above the optimum; with restarts, 0-1 %).
 
-Budget: a run gets an allowance of layouts (per-task mode: each task's ``split_budget`` share;
-shared mode: the budget divided by ``n_tasks``) and pymoo's ``MaximumFunctionCallTermination``.
-A generation that would pass the allowance is cut: its first individuals, up to what fits, are
-evaluated and the rest get ``F = +inf`` without being evaluated or charged; pymoo's counter then
-reaches the allowance and the run ends. So the samples spent never exceed the budget. A small
-allowance shrinks the population to ``allowance // min_generations`` (2 at least) so that a run
-still evolves; below 2 layouts a run is a documented best effort: the first (random) population is
-evaluated only as far as it fits, a uniform random sample. A budget with less than one layout per
-task (per task, or for the shared layout) raises :class:`~fixbench.solvers.base.PlannerError`. A GA that
-can breed no new individual (a tiny space, all seen) stops early and leaves the rest unspent.
+Budget: a run gets an allowance of layouts (:meth:`~fixbench.solvers.base.Planner.drive`; per-task
+mode: each task's ``split_budget`` share; shared mode: the budget divided by ``n_tasks``) and
+pymoo's ``MaximumFunctionCallTermination``. A generation that would pass the allowance is cut: its
+first individuals, up to what fits, are evaluated and the rest get ``F = +inf`` without being
+evaluated or charged; pymoo's counter then reaches the allowance and the run ends. So the samples
+spent never exceed the budget. A small allowance shrinks the population to
+``allowance // min_generations`` (2 at least) so that a run still evolves; below 2 layouts a run is a documented
+best effort: the first (random) population is evaluated only as far as it fits, a uniform random
+sample. A budget with less than one layout per task (per task, or for the shared layout) raises
+:class:`~fixbench.solvers.base.PlannerError`. A GA that can breed no new individual (a tiny space,
+all seen) stops early and leaves the rest unspent.
 
 Transfer (``transfer`` k > 0, per-task mode): tasks are solved in order, and the first population
 of each task holds the best layouts of the k already-solved tasks nearest by task features
@@ -65,7 +69,6 @@ import numpy as np
 from pymoo.algorithms.soo.nonconvex.ga import GA
 from pymoo.algorithms.soo.nonconvex.pso import PSO
 from pymoo.core.algorithm import Algorithm
-from pymoo.core.problem import Problem as PymooProblem
 from pymoo.core.sampling import Sampling
 from pymoo.core.termination import TerminateIfAny
 from pymoo.operators.crossover.sbx import SBX
@@ -77,77 +80,36 @@ from pymoo.optimize import minimize
 from pymoo.termination.ftol import SingleObjectiveSpaceTermination
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.robust import RobustTermination
-from scipy.spatial import cKDTree
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import (
-    Planner,
-    PlannerConfig,
-    TracedEvaluator,
-    at_least,
-    require,
-    require_budget,
-    split_budget,
-)
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, require
+from fixbench.solvers.pymoo_problem import Encoding, PopulationProblem, integer_encoding, plane_encoding
 from fixbench.solvers.registry import register
-from fixbench.solvers.transfer import warm_layouts
-
-
-class PopulationProblem(PymooProblem):
-    """A population -> layouts -> one counted call per generation, capped at ``allowance`` layouts
-    (the pymoo problem behind ``ga`` and ``pso``; :class:`fixbench.solvers.pymoo_problem.LayoutProblem`
-    builds one for a task of a fixbench problem)."""
-
-    def __init__(self, xl: np.ndarray, xu: np.ndarray, vtype: type,
-                 decode: Callable[[np.ndarray], np.ndarray],
-                 score: Callable[[np.ndarray], np.ndarray], allowance: int):
-        super().__init__(n_var=len(xl), n_obj=1, xl=xl, xu=xu, vtype=vtype)
-        self.decode, self.score, self.left = decode, score, allowance
-
-    def _evaluate(self, X, out, *args, **kwargs):
-        k = min(len(X), self.left)
-        F = np.full(len(X), np.inf)  # the cut tail of the last generation: never evaluated
-        if k:
-            F[:k] = self.score(self.decode(np.asarray(X[:k])))
-            self.left -= k
-        out["F"] = F
 
 
 class _EvolutionaryPlanner(Planner):
-    """Shared driver: one pymoo run per task (per-task) or one on the worst task (shared)."""
+    """One pymoo run on each share of the budget (:meth:`~fixbench.solvers.base.Planner.drive`): per
+    task, or one on the worst task (shared)."""
+
+    #: the layouts as this algorithm's variables (:mod:`fixbench.solvers.pymoo_problem`)
+    encoding: ClassVar[Callable[[Problem], Encoding]]
 
     @abstractmethod
     def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
         """The configured pymoo algorithm with population ``size`` (a fresh one per run); ``seeds``
         (encoded layouts) go into the first population, the rest is sampled as usual."""
 
-    @abstractmethod
-    def encoding(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, type, Callable, Callable]:
-        """(xl, xu, vtype, decode, encode): bounds, variable type, population -> layouts and back
-        (public: the pymoo adapter uses ga's)."""
-
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        p = cfg.soft_power or None
-        xl, xu, vtype, decode, encode = self.encoding(problem)
-        if mode == "shared":
-            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            runs = [(None, lambda layouts: ev.shared_fitness(layouts, p),
-                     cfg.evals_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks))]
-        else:
-            require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-            shares = split_budget(ev.budget, len(ev.tasks), cfg.evals_per_task)
-            runs = [(t, lambda layouts, t=t: ev.fitness(t, layouts, p), n) for t, n in zip(ev.tasks, shares)]
-        generations, n_eval, restarts = [], [], []
-        for task, score, allowance in runs:
-            spent, left, gens, starts = ev.samples, allowance, 0, 0
-            warm = np.empty((0, problem.n_agents))
-            if task is not None and cfg.transfer:  # read when the task's turn comes: earlier tasks are solved
-                warm = warm_layouts(problem, ev.best, ev.best_layout, task, cfg.transfer)
+        encoding = self.encoding(problem)
+
+        def search(share: Share) -> tuple[int, int, int]:
+            """One run on the share, restarted while it stalls: (generations, samples spent, restarts)."""
+            spent, left, gens, starts = ev.samples, share.allowance, 0, 0
             while left > 0:
                 size = max(2, min(cfg.pop_size, left // cfg.min_generations))
-                seeds = encode(warm[:size]) if starts == 0 and len(warm) else None
-                problem_ = PopulationProblem(xl, xu, vtype, decode, score, left)
+                seeds = encoding.encode(share.warm[:size]) if starts == 0 and len(share.warm) else None
+                problem_ = PopulationProblem(encoding, share.score, left)
                 stall = RobustTermination(SingleObjectiveSpaceTermination(0.0, only_feas=False),
                                           period=cfg.stall_generations or 1)
                 budget_end = MaximumFunctionCallTermination(left)
@@ -157,13 +119,12 @@ class _EvolutionaryPlanner(Planner):
                 gens, starts, left = gens + int(res.algorithm.n_gen), starts + 1, problem_.left
                 if not (cfg.stall_generations and stall.has_terminated()):
                     break  # the budget is spent, or the algorithm stopped itself (nothing new to breed)
-            generations.append(gens)
-            n_eval.append(ev.samples - spent)
-            restarts.append(starts - 1)
-        info = {"generations": generations, "n_eval": n_eval, "restarts": restarts}
-        if mode == "shared":
-            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), info
-        return ev.best_layout.copy(), info
+            return gens, ev.samples - spent, starts - 1
+
+        layouts, runs = self.drive(problem, ev, mode, search, unlimited=cfg.evals_per_task,
+                                   soft_power=cfg.soft_power or None, transfer=cfg.transfer)
+        generations, n_eval, restarts = (list(column) for column in zip(*runs))
+        return layouts, {"generations": generations, "n_eval": n_eval, "restarts": restarts}
 
 
 @dataclass(frozen=True)
@@ -243,6 +204,7 @@ class GeneticPlanner(_EvolutionaryPlanner):
     name = "ga"
     description = "pymoo genetic algorithm, one integer gene per agent (index into its set)"
     Config = GAConfig
+    encoding = staticmethod(integer_encoding)
 
     def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
         cfg = self.config
@@ -251,19 +213,6 @@ class GeneticPlanner(_EvolutionaryPlanner):
                                 repair=RoundingRepair()),
                   mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
                   eliminate_duplicates=True)
-
-    def encoding(self, problem: Problem):
-        sets = problem.action_sets
-        xu = np.array([len(s) - 1 for s in sets], dtype=float)
-
-        def decode(X: np.ndarray) -> np.ndarray:
-            genes = np.rint(X).astype(np.int64)
-            return np.column_stack([s[genes[:, a]] for a, s in enumerate(sets)])
-
-        def encode(layouts: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.searchsorted(s, layouts[:, a]) for a, s in enumerate(sets)]).astype(float)
-
-        return np.zeros(len(sets)), xu, int, decode, encode
 
 
 @dataclass(frozen=True)
@@ -308,41 +257,9 @@ class SwarmPlanner(_EvolutionaryPlanner):
     name = "pso"
     description = "pymoo particle swarm, a point in the plane per agent snapped to its nearest candidate"
     Config = PSOConfig
+    encoding = staticmethod(plane_encoding)
 
     def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
         cfg = self.config
         return PSO(pop_size=size, sampling=_Seeded(LHS(), seeds), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
                    adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)
-
-    def encoding(self, problem: Problem):
-        sets = problem.action_sets
-        where = _centre_and_spread(problem.points)
-        points = [where[s] for s in sets]  # an action as 2 m numbers (one pad: its (x, y))
-        d = where.shape[1]
-        trees = [cKDTree(p) for p in points]
-        pad = 0.5 * float(np.median(cKDTree(problem.candidates).query(problem.candidates, k=2)[0][:, 1]))
-        xl = np.concatenate([p.min(axis=0) - pad for p in points])
-        xu = np.concatenate([p.max(axis=0) + pad for p in points])
-
-        def decode(X: np.ndarray) -> np.ndarray:
-            return np.column_stack([s[t.query(X[:, d * a:d * a + d])[1]]
-                                    for a, (s, t) in enumerate(zip(sets, trees))])
-
-        def encode(layouts: np.ndarray) -> np.ndarray:
-            return where[np.asarray(layouts, dtype=np.int64)].reshape(len(layouts), -1)
-
-        return xl, xu, float, decode, encode
-
-
-def _centre_and_spread(points: np.ndarray) -> np.ndarray:
-    """Actions as PSO coordinates: one pad, its (x, y); m pads, their centre and each other pad's
-    offset from the first, ``(cx, cy, x2 - x1, y2 - y1, ...)``. In the pads' own coordinates most of
-    the box around a robot's pairs is no pair at all (two pads at most ``span`` apart fill a thin
-    shell of the 4-D box), and a particle there snaps to whichever pair is nearest: the swarm's
-    first population and its moves crowd onto a few pairs. Centre and offset fill their box
-    (offsets within a disc of radius ``span``), so a point snaps near where it is."""
-    m = points.shape[1] // 2
-    if m == 1:
-        return points
-    xy = points.reshape(len(points), m, 2)
-    return np.concatenate([xy.mean(axis=1), (xy[:, 1:] - xy[:, :1]).reshape(len(points), -1)], axis=1)

@@ -25,12 +25,13 @@ each task starts from the best of the best layouts of the k already-solved tasks
 features (:mod:`fixbench.solvers.transfer`; each costs its one sample) instead of a random layout: the
 chance the learners have of carrying what they found from one drilling position to the next.
 
-Per-task mode runs this on each task with an equal share of the budget (``split_budget``);
-shared mode runs it once on the worst-over-tasks objective (``shared_fitness``, n_tasks samples
-per layout). Budget: at least one layout must fit (one sample per task, or n_tasks in shared mode),
-else :class:`PlannerError`. Beyond that it is a documented best effort: when the budget ends in the
-middle of an agent's check, the alternatives that still fit are evaluated (in random order), the
-best move among them is taken, and the restart stops unconverged (``info["converged"]``).
+Per-task mode runs this on each task with an equal share of the budget; shared mode runs it once
+on the worst-over-tasks objective (n_tasks samples per layout): the budget loop of
+:meth:`~fixbench.solvers.base.Planner.drive`. Budget: at least one layout must fit (one sample per
+task, or n_tasks in shared mode), else :class:`PlannerError`. Beyond that it is a documented best
+effort: when the budget ends in the middle of an agent's check, the alternatives that still fit are
+evaluated (in random order), the best move among them is taken, and the restart stops unconverged
+(``info["converged"]``).
 
 Budgets too small for one round: when a task's budget cannot pay for one complete check of every
 agent's set (the wing panel: 5 x 667 = 3,335 a task), best response cannot even finish a round,
@@ -59,17 +60,8 @@ from typing import ClassVar
 import numpy as np
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import (
-    Planner,
-    PlannerConfig,
-    TracedEvaluator,
-    at_least,
-    random_layouts,
-    require_budget,
-    split_budget,
-)
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts
 from fixbench.solvers.registry import register
-from fixbench.solvers.transfer import warm_layouts
 
 
 @dataclass(frozen=True)
@@ -104,51 +96,43 @@ class Greedy(Planner):
     Config = GreedyConfig
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
-        T, p = problem.n_tasks, self.config.soft_power or None
-        if mode == "shared":
-            require_budget(self.name, ev.remaining, T, "one shared layout on every task")
-            runs = self._restarts(problem, lambda L: ev.shared_fitness(L, p), T, ev.remaining, rng)
-            return np.tile(ev.shared_layout, (T, 1)), _info([runs])
-        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-        all_runs = []
-        for task, budget in zip(ev.tasks, split_budget(ev.budget, len(ev.tasks), math.inf)):
-            warm = warm_layouts(problem, ev.best, ev.best_layout, task, self.config.transfer)
-            all_runs.append(self._restarts(problem, lambda L, t=task: ev.fitness(t, L, p), 1, budget, rng, warm))
-        return ev.best_layout.copy(), _info(all_runs)
+        cfg = self.config
+        layouts, runs = self.drive(problem, ev, mode, lambda share: self._restarts(problem, share, rng),
+                                   unlimited=math.inf, soft_power=cfg.soft_power or None, transfer=cfg.transfer)
+        return layouts, _info(runs)
 
-    def _restarts(self, problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
-                  warm: np.ndarray | None = None):
-        """Run restarts within ``budget``: [(sweeps, converged) per restart]. ``ev`` keeps the best.
-        The first starts from the best of the ``warm`` layouts when there are any."""
+    def _restarts(self, problem: Problem, share: Share, rng: np.random.Generator) -> list[tuple[int, bool]]:
+        """Restarts within the share's allowance of layouts: [(sweeps, converged) per restart]; the
+        evaluator keeps the best. The first starts from the best of the warm layouts when there are any."""
+        budget, evaluate, warm = share.allowance, share.score, share.warm
+        if budget < sum(len(a) for a in problem.action_sets):  # not one complete round: sample moves
+            start = warm[:int(min(len(warm), budget))] if len(warm) else None
+            return [_sample_moves(problem, evaluate, budget, rng, start)]
         runs, spent = [], 0
-        if budget < cost * sum(len(a) for a in problem.action_sets):  # not one complete round: sample moves
-            start = warm[:int(min(len(warm), budget // cost))] if warm is not None and len(warm) else None
-            return [_sample_moves(problem, evaluate, cost, budget, rng, start)]
         for i in range(self.config.restarts):
-            if budget - spent < cost:
+            if budget - spent < 1:
                 break
             start = None
-            if i == 0 and warm is not None and len(warm):
-                start = warm[:int(min(len(warm), (budget - spent) // cost))]  # what the budget allows
-            sweeps, converged, used = _descend(problem, evaluate, cost, budget - spent, rng, start)
+            if i == 0 and len(warm):
+                start = warm[:int(min(len(warm), budget - spent))]  # what the budget allows
+            sweeps, converged, used = _descend(problem, evaluate, budget - spent, rng, start)
             spent += used
             runs.append((sweeps, converged))
         return runs
 
 
-def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
-             start: np.ndarray | None = None):
-    """One restart from the best of ``start`` (else a random layout): (sweeps, converged, samples
-    spent) within ``budget`` samples."""
+def _descend(problem: Problem, evaluate, budget: float, rng: np.random.Generator, start: np.ndarray | None = None):
+    """One restart from the best of ``start`` (else a random layout): (sweeps, converged, layouts
+    evaluated) within ``budget`` layouts."""
     n = problem.n_agents
     starts = random_layouts(problem, rng, 1) if start is None else start
     values = evaluate(starts)
     layout, value = starts[int(np.argmin(values))], float(np.min(values))
-    spent, checks, since = cost * len(starts), 0, 0  # since: agents checked since the last move
+    spent, checks, since = len(starts), 0, 0  # since: agents checked since the last move
     a = int(rng.integers(n))  # the first agent to move: a small budget must not always favour agent 0
     while since < n:
         alts = problem.action_sets[a][problem.action_sets[a] != layout[a]]
-        fit = len(alts) if math.isinf(budget) else int((budget - spent) // cost)
+        fit = len(alts) if math.isinf(budget) else int(budget - spent)
         partial = fit < len(alts)
         if partial:
             alts = rng.permutation(alts)[:fit]  # best effort: what the budget still allows
@@ -156,7 +140,7 @@ def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.rando
             trial = np.tile(layout, (len(alts), 1))
             trial[:, a] = alts
             values = evaluate(trial)
-            spent += cost * len(alts)
+            spent += len(alts)
             i = int(np.argmin(values))
             if values[i] < value:
                 layout, value, since = trial[i], values[i], 0
@@ -168,19 +152,20 @@ def _descend(problem: Problem, evaluate, cost: int, budget: float, rng: np.rando
     return math.ceil(checks / n), since >= n, spent
 
 
-def _sample_moves(problem: Problem, evaluate, cost: int, budget: float, rng: np.random.Generator,
+def _sample_moves(problem: Problem, evaluate, budget: int, rng: np.random.Generator,
                   start: np.ndarray | None = None) -> tuple[int, bool]:
-    """The small-budget fallback (module doc): (rounds of moves, None); the None marks it in ``info``."""
-    k = max(1, int(budget // cost) // 2)
+    """The small-budget fallback (module doc) within ``budget`` layouts: (rounds of moves, None); the
+    None marks it in ``info``."""
+    k = max(1, int(budget) // 2)
     starts = random_layouts(problem, rng, k)
     if start is not None:
         starts = np.vstack([start, starts])[:max(k, len(start))]
     values = evaluate(starts)
     layout, value = starts[int(np.argmin(values))], float(np.min(values))
-    spent, rounds = cost * len(starts), 0
+    spent, rounds = len(starts), 0
     n = problem.n_agents
-    while budget - spent >= cost:
-        k = int(min(n, (budget - spent) // cost))
+    while budget - spent >= 1:
+        k = int(min(n, budget - spent))
         agents = rng.permutation(n)[:k]
         trial = np.tile(layout, (k, 1))
         for j, a in enumerate(agents):
@@ -188,7 +173,7 @@ def _sample_moves(problem: Problem, evaluate, cost: int, budget: float, rng: np.
             if len(alts):
                 trial[j, a] = alts[rng.integers(len(alts))]
         values = evaluate(trial)
-        spent += cost * k
+        spent += k
         rounds += 1
         i = int(np.argmin(values))
         if values[i] < value:

@@ -22,9 +22,10 @@ best of the best layouts of the k already-solved tasks nearest by task features
 for the first task, the best of ``max(starts, start_share x budget)`` random layouts (at most half the
 task's budget).
 
-Budget: per-task mode splits it equally over the tasks (``split_budget``), shared mode judges every
-layout on every task (``n_tasks`` samples a layout). When a batch no longer fits, the moves that
-fit are evaluated (in random order) and the task ends. At least one layout per task must fit.
+Budget: per-task mode splits it equally over the tasks, shared mode judges every layout on every
+task (``n_tasks`` samples a layout): the budget loop of :meth:`~fixbench.solvers.base.Planner.drive`.
+When a batch no longer fits, the moves that fit are evaluated (in random order) and the task ends. At
+least one layout per task must fit.
 """
 
 from __future__ import annotations
@@ -37,18 +38,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import (
-    Planner,
-    PlannerConfig,
-    TracedEvaluator,
-    at_least,
-    random_layouts,
-    require,
-    require_budget,
-    split_budget,
-)
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts, require
 from fixbench.solvers.registry import register
-from fixbench.solvers.transfer import warm_layouts
 
 
 @dataclass(frozen=True)
@@ -112,20 +103,15 @@ class LocalSearch(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        p = cfg.soft_power or None
         trees = [cKDTree(problem.points[s]) for s in problem.action_sets]
-        if mode == "shared":
-            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            n = cfg.samples_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks)
-            stats = [local_search(problem, lambda L: ev.shared_fitness(L, p), n, None, rng, cfg, trees)]
-            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), _info(stats)
-        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-        stats = []
-        for task, n in zip(ev.tasks, split_budget(ev.budget, len(ev.tasks), cfg.samples_per_task)):
-            warm = warm_layouts(problem, ev.best, ev.best_layout, task, cfg.transfer)
-            stats.append(local_search(problem, lambda L, t=task: ev.fitness(t, L, p), n,
-                                      warm if len(warm) else None, rng, cfg, trees))
-        return ev.best_layout.copy(), _info(stats)
+
+        def search(share: Share) -> tuple[int, int]:
+            warm = share.warm if len(share.warm) else None
+            return local_search(problem, share.score, share.allowance, warm, rng, cfg, trees)
+
+        layouts, stats = self.drive(problem, ev, mode, search, unlimited=cfg.samples_per_task,
+                                    soft_power=cfg.soft_power or None, transfer=cfg.transfer)
+        return layouts, _info(stats)
 
 
 def local_search(problem: Problem, fitness, budget: int, starts: np.ndarray | None, rng: np.random.Generator,

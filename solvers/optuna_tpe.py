@@ -7,16 +7,16 @@ good and the bad layouts seen so far by per-parameter (``multivariate``: joint) 
 proposes the layout that maximises their ratio.
 
 The study is driven by ask-and-tell, one layout a trial, so the budget is honoured exactly: per-task
-mode runs one study a task on its ``split_budget`` share (``samples_per_task`` each when unlimited),
-the objective the task's max |u| in metres (the soft max with ``soft_power``, as ``ga`` and ``pso``
-may use); shared mode runs one study on the worst task of one layout, ``n_tasks`` samples a trial.
-A layout the study proposes again is told its known value and costs nothing (the oracle is
-deterministic); a study that has proposed only known layouts ``stall_asks`` times in a row has
-converged and stops with its budget left (a documented best effort, as ``ga`` that can breed nothing
-new). An allowance that covers the whole joint space (tiny problems) is spent on every layout once,
-in batches, instead: TPE would only rediscover them, one ask at a time (each ask costs more as a
-study grows: measured on fan_small with 2 agents, 7 ms an ask on average over a study of 100 or 300
-layouts, 11 ms over one of 1,000).
+mode runs one study a task on its share of the budget (``samples_per_task`` each when unlimited; the
+budget loop of :meth:`~fixbench.solvers.base.Planner.drive`), the objective the task's max |u| in
+metres (the soft max with ``soft_power``, as ``ga`` and ``pso`` may use); shared mode runs one study
+on the worst task of one layout, ``n_tasks`` samples a trial. A layout the study proposes again is
+told its known value and costs nothing (the oracle is deterministic); a study that has proposed only
+known layouts ``stall_asks`` times in a row has converged and stops with its budget left (a
+documented best effort, as ``ga`` that can breed nothing new). An allowance that covers the whole
+joint space (tiny problems) is spent on every layout once, in batches, instead: TPE would only
+rediscover them, one ask at a time (each ask costs more as a study grows: measured on fan_small with
+2 agents, 7 ms an ask on average over a study of 100 or 300 layouts, 11 ms over one of 1,000).
 
 Seeding: each study's :class:`optuna.samplers.TPESampler` gets a seed drawn from the planner's
 ``rng``; nothing global is seeded, so the same seed gives the same layouts. Optuna's logging is
@@ -46,9 +46,8 @@ import numpy as np
 import optuna
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, at_least, require_budget, split_budget
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least
 from fixbench.solvers.registry import register
-from fixbench.solvers.transfer import warm_layouts
 
 ENUMERATION_BATCH = 4096  # layouts a counted call when an allowance covers the joint space
 
@@ -98,35 +97,24 @@ class OptunaTPE(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        p = cfg.soft_power or None
-        if mode == "shared":
-            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            allowance = cfg.samples_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks)
-            runs = [(None, lambda layouts: ev.shared_fitness(layouts, p), allowance)]
-        else:
-            require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-            shares = split_budget(ev.budget, len(ev.tasks), cfg.samples_per_task)
-            runs = [(int(t), lambda layouts, t=int(t): ev.fitness(t, layouts, p), n) for t, n in zip(ev.tasks, shares)]
-        info: dict[str, list[int]] = {"trials": [], "n_eval": [], "repeats": []}
+
+        def search(share: Share) -> tuple[int, int, int]:
+            """One study on the share: (asks, samples spent, repeats)."""
+            spent = ev.samples
+            asks, repeats = self._study(problem, share.score, share.allowance, share.warm, int(rng.integers(2**31)))
+            return asks, ev.samples - spent, repeats
+
         verbosity = optuna.logging.get_verbosity()
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                for task, score, allowance in runs:
-                    warm = np.empty((0, problem.n_agents), dtype=np.int64)
-                    if task is not None and cfg.transfer:  # read when the task's turn comes
-                        warm = warm_layouts(problem, ev.best, ev.best_layout, task, cfg.transfer)
-                    spent = ev.samples
-                    asks, repeats = self._study(problem, score, allowance, warm, int(rng.integers(2**31)))
-                    info["trials"].append(asks)
-                    info["n_eval"].append(ev.samples - spent)
-                    info["repeats"].append(repeats)
+                layouts, studies = self.drive(problem, ev, mode, search, unlimited=cfg.samples_per_task,
+                                              soft_power=cfg.soft_power or None, transfer=cfg.transfer)
         finally:
             optuna.logging.set_verbosity(verbosity)
-        if mode == "shared":
-            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), info
-        return ev.best_layout.copy(), info
+        trials, n_eval, repeats = (list(column) for column in zip(*studies))
+        return layouts, {"trials": trials, "n_eval": n_eval, "repeats": repeats}
 
     def _study(self, problem: Problem, score, allowance: int, warm: np.ndarray, seed: int) -> tuple[int, int]:
         """One ask-and-tell study of ``allowance`` new layouts; returns (asks, repeats)."""

@@ -7,15 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import (
-    Planner,
-    PlannerConfig,
-    TracedEvaluator,
-    at_least,
-    random_layouts,
-    require_budget,
-    split_budget,
-)
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts
 from fixbench.solvers.registry import register
 
 
@@ -39,16 +31,17 @@ class RandomSearch(Planner):
     Config = RandomConfig
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
-        cfg = self.config
-        if mode == "shared":
-            n = cfg.samples_per_task if ev.budget is None else int(ev.remaining // problem.n_tasks)
-            require_budget(self.name, ev.remaining, problem.n_tasks, "one shared layout on every task")
-            for start in range(0, n, cfg.batch):
-                ev.evaluate_shared(random_layouts(problem, rng, min(cfg.batch, n - start)))
-            return np.tile(ev.shared_layout, (problem.n_tasks, 1)), {}
-        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-        for task, n in zip(ev.tasks, split_budget(ev.budget, len(ev.tasks), cfg.samples_per_task)):
+        batch = self.config.batch
+
+        def search(share: Share) -> None:
+            n = share.allowance
+            if share.task is None:  # the shared layout: drawn a batch at a time
+                for start in range(0, n, batch):
+                    share.score(random_layouts(problem, rng, min(batch, n - start)))
+                return
             layouts = random_layouts(problem, rng, n)  # drawn at once: independent of batch size
-            for start in range(0, n, cfg.batch):
-                ev.evaluate(task, layouts[start:start + cfg.batch])
-        return ev.best_layout.copy(), {}
+            for start in range(0, n, batch):
+                share.score(layouts[start:start + batch])
+
+        layouts, _ = self.drive(problem, ev, mode, search, unlimited=self.config.samples_per_task)
+        return layouts, {}

@@ -102,8 +102,8 @@ def test_example_plugin_installs_and_runs(tmp_path):
                             text=True, env=env, cwd=ROOT)
     assert "near-load" in listed.stdout, listed.stderr
     proc = subprocess.run([sys.executable, "-m", "fixbench", "solve", "fan_small", "--planner", "near-load",
-                           "--set", "offset_mm=20", "--json"], capture_output=True, text=True, env=env,
-                          cwd=ROOT)
+                           "--set", "nearest=2", "--budget", "30", "--json"], capture_output=True, text=True,
+                          env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     res = json.loads(proc.stdout)
-    assert res["planner"] == "near-load" and res["samples"] == 0
+    assert res["planner"] == "near-load" and res["samples"] == 30  # the driver spent the budget, 5 a task
