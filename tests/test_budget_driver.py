@@ -7,7 +7,10 @@ returned and of its anytime trace, and the samples it spent; and on fan_small wi
 (each planner's own allowance, made small). They were written by the code before the
 driver existed; a change to a planner's budget loop that moves one evaluation, one draw of ``rng`` or
 one bit of the trace fails here. They are this oracle's bits: a change to the FEA or to the case files
-changes them too, and only then are they rewritten (``python tests/test_budget_driver.py``).
+changes them too, and only then are they rewritten (``python tests/test_budget_driver.py``). Another
+host's BLAS may round the FEA differently and move a near-tie: the file also holds the bits of each
+case's oracle on a fixed set of random layouts, and where this host's differ the comparisons are
+skipped (with the reason), not failed.
 """
 
 from __future__ import annotations
@@ -91,6 +94,26 @@ def adapter_fingerprint(mode: str) -> dict:
             "samples": int(lp.samples)}
 
 
+def oracle_fingerprint(case: str) -> str:
+    """sha256 of the case's max deformation on 64 random layouts of every task (this host's FEA bits)."""
+    p = problem(case)
+    rng = np.random.default_rng(12345)
+    layouts = np.stack([rng.choice(np.asarray(s), 64) for s in p.action_sets], axis=1)
+    return digest(np.concatenate([p.measure(t, layouts) for t in range(p.n_tasks)]), "<f8")
+
+
+@functools.cache
+def same_oracle() -> bool:
+    return all(oracle_fingerprint(c) == stored()[f"oracle/{c}"] for c in CASES)
+
+
+@pytest.fixture(autouse=True)
+def _same_fea_bits(request):
+    if request.node.name != "test_every_run_is_stored" and not same_oracle():
+        pytest.skip("this host's FEA rounds differently from the host that wrote the fingerprints "
+                    "(oracle bits differ): layouts are compared only where the oracle's bits agree")
+
+
 @functools.cache
 def stored() -> dict:
     return json.loads(DATA.read_text(encoding="utf-8"))
@@ -99,7 +122,8 @@ def stored() -> dict:
 def test_every_run_is_stored():
     """The stored file covers exactly the runs this test makes (none silently dropped)."""
     assert sorted(stored()) == sorted([key(*r) for r in runs()] + [f"fan_small/{n}/unlimited/{m}" for n in PLANNERS
-                                                                   for m in MODES] + [f"adapter/{m}" for m in MODES])
+                                                                   for m in MODES] + [f"adapter/{m}" for m in MODES]
+                                  + [f"oracle/{c}" for c in CASES])
 
 
 @pytest.mark.parametrize("run", runs(), ids=lambda r: key(*r))
@@ -124,5 +148,6 @@ if __name__ == "__main__":  # rewrite the fingerprints (only for a change meant 
     data.update({f"fan_small/{n}/unlimited/{m}": planner_fingerprint("fan_small", n, 0, m, unlimited=True)
                  for n in PLANNERS for m in MODES})
     data.update({f"adapter/{m}": adapter_fingerprint(m) for m in MODES})
+    data.update({f"oracle/{c}": oracle_fingerprint(c) for c in CASES})
     DATA.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     print(f"{DATA}: {len(data)} fingerprints", file=sys.stderr)
