@@ -98,7 +98,7 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
 
 def shipped_reference(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
     """The shipped reference of a catalog case for ``tasks`` of its tasks (all: None), or None."""
-    from fixbench.cases.references import load_reference
+    from fixbench.cases.references import load_reference, source_text
     from fixbench.cases.spec import case_names
 
     if case not in case_names():
@@ -110,7 +110,7 @@ def shipped_reference(case: str, material: str, agents: int, tasks: int | None) 
     recs = [full["tasks"][i] for i in ids]
     return {"per_task": [r["max_deformation_m"] for r in recs], "layouts": [r["layout"] for r in recs],
             "proven": all(r["status"] == "proven" for r in recs), "gap": None, "method": "portfolio",
-            "source": f"catalog reference {Path(full['path']).name} (content {full['content_hash']})"}
+            "source": source_text(full)}
 
 
 def _samples_to(trace: np.ndarray, task: int, target: float) -> float:

@@ -371,6 +371,26 @@ def report(run_dirs, with_runs, out, no_fields, readme) -> None:
 
 @cli.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--cells", "k", type=click.IntRange(min=1), default=10, show_default=True,
+              help="Cells to rerun, sampled across planners.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sample.")
+@click.option("--only", help="Sample only among these cells (as fixbench run --only).")
+@click.option("--workers", type=click.IntRange(min=1), help="Parallel workers (default: one per core).")
+def verify(run_dir, k, seed, only, workers) -> None:
+    """Rerun K cells of RUN_DIR here and print the committed and the new value of each; exit 1 when
+    one disagrees (bench/verify.py)."""
+    from fixbench.bench.verify import show
+    from fixbench.bench.verify import verify as rerun
+
+    records = rerun(run_dir, k, seed, tuple(x.strip() for x in (only or "").split(",") if x), workers,
+                    echo=lambda m: click.echo(m, err=True))
+    click.echo(show(records))
+    if not all(r["agrees"] for r in records):
+        raise click.exceptions.Exit(1)
+
+
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(["iohprofiler", "marl-eval", "csv"]), required=True,
               help="iohprofiler (IOHanalyzer's folders), marl-eval (one JSON) or csv (rows and traces).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),

@@ -4,6 +4,7 @@ Everything is read back from the results store (:mod:`fixbench.bench.store`): ro
 learners' training curves and the regret references. The report folder gets
 
     report.md                   the tables (Markdown) and the figures (relative links)
+    index.html                  the same as one self-contained page, with the run's provenance
     tables/<name>.csv|.tex|.md  every table: CSV with plain numbers, LaTeX and Markdown formatted
     figures/<name>.png|.pdf     every figure
 
@@ -67,6 +68,7 @@ from fixbench.bench.figures import (  # noqa: E402
     sweep_figure,
     violin_figure,
 )
+from fixbench.bench.html_report import write_html  # noqa: E402
 from fixbench.bench.merge import Runs, load_runs, run_names  # noqa: E402
 from fixbench.bench.provenance import host_key  # noqa: E402
 from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
@@ -80,6 +82,7 @@ from fixbench.bench.tables import (  # noqa: E402
     show_summary,
     summary_table,
 )
+from fixbench.cases.references import check_sources  # noqa: E402
 
 NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
            "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
@@ -126,6 +129,12 @@ def load_references(run_dir: Path) -> dict[tuple, dict]:
         key = (ref.get("case"), ref.get("material"), int(ref.get("agents")), int(ref.get("n_tasks")))
         out[key] = ref
     return out
+
+
+def check_scored_references(run_dir: Path, rows: pd.DataFrame, refs: dict) -> None:
+    """Refuse (one line) a run whose rows or reference snapshots were scored against a shipped
+    reference other than the one shipped now (:func:`fixbench.cases.references.check_sources`)."""
+    check_sources([*rows["reference_source"], *(r.get("source") for r in refs.values())], str(run_dir))
 
 
 # the report -----------------------------------------------------------------------------------------
@@ -264,10 +273,13 @@ def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | No
     directories of one protocol make one merged report (:mod:`fixbench.bench.merge`; default ``out``:
     the first one's ``report``).
 
-    Returns ``{"report": path, "tables": {name: csv}, "figures": {name: png}, "notes": [...]}``;
+    Returns ``{"report": path, "html": index.html, "tables": {name: csv}, "figures": {name: png},
+    "notes": [...]}``;
     ``notes`` lists what was skipped and why (also written into report.md).
     """
     runs = load_runs([run_dir] if isinstance(run_dir, (str, Path)) else list(run_dir))
+    for path, (each_rows, each_refs) in zip(runs.paths, runs.each):
+        check_scored_references(path, each_rows, each_refs)
     rows, refs = runs.rows, runs.refs
     out = Path(out) if out is not None else runs.paths[0] / "report"
     w = _Writer(out)
@@ -290,7 +302,8 @@ def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | No
         w.md += ["## Skipped", ""] + [f"- {n}" for n in w.notes] + [""]
     path = out / "report.md"
     path.write_text("\n".join(w.md))
-    return {"report": path, "tables": w.tables, "figures": w.figures, "notes": w.notes}
+    page = write_html(out, rows, [p / "matrix.toml" for p in runs.paths])
+    return {"report": path, "html": page, "tables": w.tables, "figures": w.figures, "notes": w.notes}
 
 
 def _hosts(rows: pd.DataFrame) -> list[str]:

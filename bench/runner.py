@@ -66,7 +66,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
     store = Store(out)
     text = Path(matrix_path).read_text(encoding="utf-8")
     cells = matrix.cells()
-    selected = _selection(cells, only)
+    selected = selection(cells, only)
     if not store.root.exists() and not any(selected(c) for c in cells):
         return {"cells": len(cells), "skipped": 0, "run": 0, "failed": 0, "deferred": len(cells)}
     opts = _RunOptions(executor, workers, address, cell_timeout, retry_failed, progress, bool(only), plain_every)
@@ -128,6 +128,7 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
         summary["deferred"] = len(pending) - len(todo)  # left for a later run (not selected by ``only``)
     if not todo:
         return summary
+    check_shipped_references(todo)
     if not saved.exists() or extends:
         write_text_atomic(saved, text)  # an extended run's matrix is the new one, a superset of the old
 
@@ -185,6 +186,22 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
     return summary
 
 
+def check_shipped_references(cells) -> None:
+    """Check the shipped reference of every catalog problem of ``cells`` (format, records, content
+    hash); one that fails stops the run before any cell, in one line naming the file and the problem.
+    Checked here, in the driver, because a worker records a failing reference in the run's
+    ``reference/`` snapshot and goes on: every row of the problem would end with a NaN regret and the
+    reason out of sight."""
+    from fixbench.cases.references import load_reference
+    from fixbench.cases.spec import case_names, load_case_spec
+
+    catalog = set(case_names())
+    for case, material, agents in dict.fromkeys((c.case, c.material, c.agents) for c in cells):
+        if case in catalog:
+            spec = load_case_spec(case, material, agents)
+            load_reference(case, spec.material.name, spec.n_agents)  # raises CaseError when it fails
+
+
 class _PlainProgress:
     """A progress line on stderr at most every ``every`` seconds (0: never)."""
 
@@ -213,7 +230,7 @@ def _hms(s: float) -> str:
 ONLY_KEYS = ("case", "material", "mode", "seed", "samples_per_task")
 
 
-def _selection(cells, only: tuple[str, ...]):
+def selection(cells, only: tuple[str, ...]):
     """The predicate of ``--only`` (see :func:`run_matrix`); unknown names or keys are refused."""
     known = {c.planner for c in cells} | {c.label for c in cells if c.label}
     names, values = set(), {}

@@ -16,6 +16,7 @@ import math
 import numpy as np
 import pandas as pd
 from scipy.stats import bootstrap, mannwhitneyu, trim_mean
+from scipy.stats import t as t_dist
 
 #: the bootstrap's seed, resamples and confidence level
 BOOT_SEED = 20250101
@@ -77,6 +78,21 @@ def mean_ci(values, seed: int = BOOT_SEED) -> tuple[float, float, float]:
     res = bootstrap((x,), np.mean, n_resamples=N_BOOT, confidence_level=LEVEL, method="percentile",
                     rng=np.random.default_rng(seed))
     return point, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def prediction_interval(values, level: float = LEVEL) -> tuple[float, float]:
+    """Where one more value of the population ``values`` were drawn from falls with probability
+    ``level``: mean +- t s sqrt(1 + 1/n) (normal model, Student's t with n - 1 degrees of freedom); NaNs
+    dropped, (NaN, NaN) with fewer than 2 values. The interval one rerun of a cell is judged by
+    (``fixbench verify``): a confidence interval of the mean (:func:`bootstrap_ci`) says where the mean
+    lies, about sqrt(n) times narrower than the spread of single values, and leaves out committed
+    values of the group's own seeds."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return math.nan, math.nan
+    half = t_dist.ppf((1 + level) / 2, len(x) - 1) * x.std(ddof=1) * math.sqrt(1 + 1 / len(x))
+    return float(x.mean() - half), float(x.mean() + half)
 
 
 def _p_lower(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:

@@ -25,6 +25,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
+from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 
 from fixbench.cases.errors import CaseError
@@ -76,15 +79,53 @@ def load_reference(case: str, material: str, agents: int, folder: Path | None = 
     path = reference_path(case, material, agents, folder)
     if not path.is_file():
         return None
-    try:
-        ref = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CaseError(str(path), "", f"not valid JSON ({exc})") from None
-    check_reference(ref, str(path))
+    ref = _read_checked(path)
     if ref.get("case_fingerprint") != case_fingerprint(case, material, agents):
         return None
     ref["path"] = str(path)
     return ref
+
+
+def _read_checked(path: Path) -> dict:
+    """A reference file read and checked (:func:`check_reference`); one-line CaseError."""
+    try:
+        ref = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CaseError(str(path), "", f"not valid JSON ({exc})") from None
+    return check_reference(ref, str(path))
+
+
+def source_text(ref: dict) -> str:
+    """How a row names the shipped reference it was scored against: its file and content hash."""
+    return f"catalog reference {Path(ref['path']).name} (content {ref['content_hash']})"
+
+
+#: :func:`source_text` read back
+SOURCE = re.compile(r"catalog reference (?P<file>[^ /]+\.json) \(content (?P<hash>[0-9a-f]+)\)")
+
+
+def check_sources(sources: Iterable, where: str, folder: Path | None = None) -> None:
+    """Refuse (one-line :class:`CaseError`) results scored against a shipped reference other than the
+    one shipped now: ``sources`` are their ``reference_source`` values (``exact``, empty or a
+    :func:`source_text`), ``where`` names the run. A shipped file that fails its own check is refused
+    with its file and problem; one whose content hash differs from the rows' says how many rows and how
+    to bring them up to it."""
+    named = Counter(s for s in sources if isinstance(s, str) and s.startswith("catalog reference"))
+    for source, n in sorted(named.items()):
+        m = SOURCE.fullmatch(source)
+        if m is None:
+            raise CaseError(where, "reference_source", f"{n} rows name '{source}' without a content hash: "
+                            "they cannot be checked against the shipped reference; rescore the run "
+                            f"(fixbench references rescore {where})")
+        path = Path(folder or REFERENCE_DIR) / m["file"]
+        if not path.is_file():
+            raise CaseError(where, "reference_source", f"{n} rows were scored against {m['file']}, which is "
+                            "no longer shipped")
+        shipped = _read_checked(path)
+        if shipped["content_hash"] != m["hash"]:
+            raise CaseError(where, "reference_source", f"{n} rows were scored against {m['file']} of content "
+                            f"{m['hash']}, the shipped one is {shipped['content_hash']}: rescore the run "
+                            f"(fixbench references rescore {where})")
 
 
 def write_reference(ref: dict, folder: Path | None = None) -> Path:

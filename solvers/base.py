@@ -284,6 +284,11 @@ class Planner(ABC):
     #: True for a learner whose returned layouts are its greedy policy's (not its incumbents): the
     #: policy is then always scored as the second figure ``policy``
     returns_policy: ClassVar[bool] = False
+    #: False for a planner whose results follow the host's floating-point code paths (PyTorch training:
+    #: the BLAS kernels a CPU type gets, the thread count): the same bits on the same machine only, so
+    #: ``fixbench verify`` judges a rerun elsewhere by its group's spread over seeds, not to 1e-9
+    same_on_every_host: ClassVar[bool] = True
+
 
     def __init__(self, config: PlannerConfig | None = None, **overrides: Any):
         try:  # the config checks itself when made (PlannerConfig)

@@ -401,6 +401,7 @@ class GPUCB(Planner):
     description = "Contextual GP bandit (CGP-UCB, batched by GP-BUCB) on local exact GPs of log-deformation"
     Config = GPUCBConfig
     modes = ("per-task",)
+    same_on_every_host = False
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config

@@ -194,6 +194,7 @@ class _QPlanner(Planner):
     modes = ("per-task",)
     joint = True
     returns_policy = True
+    same_on_every_host = False
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config

@@ -267,6 +267,7 @@ class SurrogateTS(Planner):
     description = "Thompson sampling on a bootstrapped MLP ensemble of log-deformation shared by all tasks"
     Config = SurrogateConfig
     modes = ("per-task",)
+    same_on_every_host = False
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config

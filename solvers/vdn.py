@@ -226,6 +226,7 @@ class VDN(Planner):
     Config = VDNConfig
     modes = ("per-task",)
     returns_policy = True
+    same_on_every_host = False
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
