@@ -17,11 +17,12 @@ Runs merge when their cells are comparable; the first difference is refused in o
 - a cell held by two runs (an extended copy beside its original) has the same result in both, and is
   read once.
 
-Labels are made per run, as :func:`fixbench.bench.report.load_rows` makes them for one run.
+Labels are made per run, as :func:`load_rows` makes them for one run.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,8 +31,13 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.comparison import _with_case_defaults
+from fixbench.bench.store import load_results
 from fixbench.bench.tables import config_text
 from fixbench.cases.errors import CaseError
+
+NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
+           "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
+           "reference_objective_m", "samples_per_task", "heldout_every", "n_scored_tasks")
 
 #: the committed runs ``--with NAME`` names (``results/NAME`` of the fixbench checkout)
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -77,10 +83,41 @@ class Runs:
         return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
+def load_rows(run_dir: Path) -> pd.DataFrame:
+    """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
+    where the row has one, else the planner (with its config when the run has one planner under several
+    configs among the unlabelled rows; rows of older runs have no label column)."""
+    rows = load_results(run_dir)
+    for c in NUMERIC:
+        rows[c] = pd.to_numeric(rows[c], errors="coerce")
+    rows["error"] = rows["error"].fillna("").astype(str)
+    rows["ok"] = rows["error"] == ""
+    rows["mode"] = rows["mode"].fillna("per-task")
+    cfg = rows["config"].map(config_text)
+    given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
+    several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
+    rows["label"] = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
+                     for g, p, c in zip(given, rows["planner"], cfg)]
+    return rows
+
+
+def load_references(run_dir: Path) -> dict[tuple, dict]:
+    """Usable references by (case, material, agents, n_tasks)."""
+    out = {}
+    for p in sorted((Path(run_dir) / "reference").rglob("*.json")):  # a case path may nest folders
+        try:
+            ref = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError):
+            continue
+        if ref.get("error") or ref.get("per_task") is None:
+            continue
+        key = (ref.get("case"), ref.get("material"), int(ref.get("agents")), int(ref.get("n_tasks")))
+        out[key] = ref
+    return out
+
+
 def load_runs(paths: list[Path]) -> Runs:
     """The runs in ``paths`` as one (see the module docstring); one path: that run as it is."""
-    from fixbench.bench.report import load_references, load_rows
-
     paths = [Path(p) for p in paths]
     for p in paths:
         if not (p / "rows").is_dir():

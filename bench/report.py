@@ -72,9 +72,8 @@ from fixbench.bench.html_report import write_html  # noqa: E402
 from fixbench.bench.merge import Runs, load_runs, run_names  # noqa: E402
 from fixbench.bench.provenance import host_key  # noqa: E402
 from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
-from fixbench.bench.store import load_curves, load_results, load_traces  # noqa: E402
+from fixbench.bench.store import load_curves, load_traces  # noqa: E402
 from fixbench.bench.tables import (  # noqa: E402
-    config_text,
     group_keys,
     profile_table,
     reference_table,
@@ -84,9 +83,6 @@ from fixbench.bench.tables import (  # noqa: E402
 )
 from fixbench.cases.references import check_sources  # noqa: E402
 
-NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
-           "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
-           "reference_objective_m", "samples_per_task", "heldout_every", "n_scored_tasks")
 LEARNER_CURVES = ("episode_return", "step_reward")
 
 
@@ -96,39 +92,6 @@ def slug(text: str) -> str:
     """A file-name-safe form of a case name (which may be a path to a TOML file)."""
     name = Path(str(text)).stem if str(text).endswith(".toml") else str(text)
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "case"
-
-
-def load_rows(run_dir: Path) -> pd.DataFrame:
-    """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
-    where the row has one, else the planner (with its config when the run has one planner under several
-    configs among the unlabelled rows; rows of older runs have no label column)."""
-    rows = load_results(run_dir)
-    for c in NUMERIC:
-        rows[c] = pd.to_numeric(rows[c], errors="coerce")
-    rows["error"] = rows["error"].fillna("").astype(str)
-    rows["ok"] = rows["error"] == ""
-    rows["mode"] = rows["mode"].fillna("per-task")
-    cfg = rows["config"].map(config_text)
-    given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
-    several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
-    rows["label"] = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
-                     for g, p, c in zip(given, rows["planner"], cfg)]
-    return rows
-
-
-def load_references(run_dir: Path) -> dict[tuple, dict]:
-    """Usable references by (case, material, agents, n_tasks)."""
-    out = {}
-    for p in sorted((Path(run_dir) / "reference").rglob("*.json")):  # a case path may nest folders
-        try:
-            ref = json.loads(p.read_text())
-        except (OSError, json.JSONDecodeError):
-            continue
-        if ref.get("error") or ref.get("per_task") is None:
-            continue
-        key = (ref.get("case"), ref.get("material"), int(ref.get("agents")), int(ref.get("n_tasks")))
-        out[key] = ref
-    return out
 
 
 def check_scored_references(run_dir: Path, rows: pd.DataFrame, refs: dict) -> None:

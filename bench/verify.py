@@ -34,8 +34,9 @@ import pandas as pd
 
 from fixbench.bench.cells import reference_key
 from fixbench.bench.matrix import load_matrix
+from fixbench.bench.merge import load_references, load_rows
 from fixbench.bench.provenance import provenance
-from fixbench.bench.report import check_scored_references, load_references, load_rows
+from fixbench.bench.report import check_scored_references
 from fixbench.bench.runner import make_executor, selection, worker_env
 from fixbench.bench.stats import LEVEL, prediction_interval
 from fixbench.bench.store import Store

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fixbench.bench.matrix import task_subset
-from fixbench.bench.report import load_references
+from fixbench.bench.merge import load_references
 from fixbench.bench.store import load_results
 from fixbench.cases.references import load_reference
 

@@ -21,7 +21,7 @@ from fixbench.cases import load_problem
 from fixbench.solvers.base import Planner, PlannerError, TracedEvaluator
 from fixbench.solvers.pymoo_problem import LayoutProblem
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+DOC = Path(__file__).resolve().parents[1] / "docs" / "planners.md"
 
 
 @pytest.fixture(scope="module")
@@ -39,13 +39,13 @@ def integer_ga(pop_size: int) -> GA:
 
 
 def test_readme_example_runs_as_written():
-    text = README.read_text(encoding="utf-8")
+    text = DOC.read_text(encoding="utf-8")
     m = re.search(r"<!-- pymoo-example -->\n```python\n(.*?)```\n<!-- /pymoo-example -->", text, re.S)
-    assert m, "README has no pymoo example between its markers"
+    assert m, "docs/planners.md has no pymoo example between its markers"
     ns: dict = {}
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        exec(compile(m.group(1), "README.md (pymoo example)", "exec"), ns)  # noqa: S102
+        exec(compile(m.group(1), "docs/planners.md (pymoo example)", "exec"), ns)  # noqa: S102
     lp, res, problem = ns["lp"], ns["res"], ns["problem"]
     assert lp.samples == lp.evaluator.samples == 300, "every evaluation is a sample, none past the budget"
     layout = lp.layout(res.X)

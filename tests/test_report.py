@@ -18,7 +18,8 @@ import pytest
 from fixbench.bench.cli import main
 from fixbench.bench.comparison import heldout_table, improvement_table, main_table, sweep_table
 from fixbench.bench.figures import anytime_figure, ecdf_figure, sweep_figure, violin_figure
-from fixbench.bench.report import load_references, load_rows, make_report
+from fixbench.bench.merge import load_references, load_rows
+from fixbench.bench.report import make_report
 from fixbench.bench.stats import bootstrap_ci, iqm, probability_of_improvement
 from fixbench.bench.store import ROW_SCHEMA, Store, load_results, write_json_atomic
 from fixbench.bench.tables import summary_table
