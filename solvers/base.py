@@ -289,7 +289,6 @@ class Planner(ABC):
     #: ``fixbench verify`` judges a rerun elsewhere by its group's spread over seeds, not to 1e-9
     same_on_every_host: ClassVar[bool] = True
 
-
     def __init__(self, config: PlannerConfig | None = None, **overrides: Any):
         try:  # the config checks itself when made (PlannerConfig)
             config = config if config is not None else self.Config()
