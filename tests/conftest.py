@@ -55,6 +55,18 @@ def plate_toml(tmp_path):
     return make
 
 
+@pytest.fixture(autouse=True)
+def _registry_left_as_found():
+    """Planners a test registers (plugins written to tmp_path, ``module:Class`` specs) leave the
+    registry when the test ends, so no later test in the same worker sees them."""
+    from fixbench.solvers import registry
+
+    before = dict(registry._REGISTRY)
+    yield
+    registry._REGISTRY.clear()
+    registry._REGISTRY.update(before)
+
+
 def pytest_configure(config):
     """Tests never touch the user's oracle cache: each test process gets an empty one of its own
     (subprocesses of CLI tests inherit it through the environment)."""
