@@ -58,13 +58,14 @@ def plate_toml(tmp_path):
 @pytest.fixture(autouse=True)
 def _registry_left_as_found():
     """Planners a test registers (plugins written to tmp_path, ``module:Class`` specs) leave the
-    registry when the test ends, so no later test in the same worker sees them."""
+    registry when the test ends, so no later test in the same worker sees them. Built-ins stay: their
+    modules register them once, when first imported."""
     from fixbench.solvers import registry
 
-    before = dict(registry._REGISTRY)
+    before = set(registry._REGISTRY)
     yield
-    registry._REGISTRY.clear()
-    registry._REGISTRY.update(before)
+    for name in set(registry._REGISTRY) - before - set(registry.BUILTIN):
+        del registry._REGISTRY[name]
 
 
 def pytest_configure(config):
