@@ -3,7 +3,7 @@
 - every ``docs/<name>.md`` or ``docs/<name>.md#<anchor>`` named in a tracked text file exists, and the
   anchor is the GitHub slug of a heading in that file (so does every relative link between docs/ pages);
 - no tracked file cites a document outside the repository (the former external reference notes);
-- README "Results" lists the same row fields, with the same meanings, as ``ROW_SCHEMA``;
+- docs/rows.md lists the same row fields, with the same meanings, as ``ROW_SCHEMA``;
 - ``CITATION.cff`` parses and carries the package's version.
 """
 
@@ -134,13 +134,11 @@ def test_no_citation_outside_the_repository():
                      "(docs/README.md lists them):\n" + "\n".join(bad))
 
 
-def readme_row_fields() -> list[tuple[str, str]]:
-    """(name, meaning) of each bullet ``- `name`: meaning`` of README's "Results" section."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    m = re.search(r"^## Results\n(.*?)(?=^## )", text, re.S | re.M)
-    assert m, 'README has no "## Results" section'
+def documented_row_fields() -> list[tuple[str, str]]:
+    """(name, meaning) of each bullet ``- `name`: meaning`` of docs/rows.md."""
+    text = (DOCS / "rows.md").read_text(encoding="utf-8")
     fields = []
-    for item in re.split(r"\n(?=- `)", m.group(1)):
+    for item in re.split(r"\n(?=- `)", text):
         b = re.match(r"- `([a-z0-9_]+)`: (.*)", item, re.S)
         if b:
             meaning = b.group(2).split("\n\n")[0]  # a bullet ends at a blank line
@@ -148,16 +146,17 @@ def readme_row_fields() -> list[tuple[str, str]]:
     return fields
 
 
-def test_readme_row_schema_matches_code():
-    readme = readme_row_fields()
-    names = [n for n, _ in readme]
+def test_documented_row_schema_matches_code():
+    documented = documented_row_fields()
+    names = [n for n, _ in documented]
     code = list(ROW_SCHEMA)
     assert names == code, (
-        "README 'Results' and bench/store.py ROW_SCHEMA list different row fields"
-        f"\n  only in README: {[n for n in names if n not in code]}"
+        "docs/rows.md and bench/store.py ROW_SCHEMA list different row fields"
+        f"\n  only in docs/rows.md: {[n for n in names if n not in code]}"
         f"\n  only in ROW_SCHEMA: {[n for n in code if n not in names]}"
-        f"\n  order: README {names}\n         code   {code}")
-    differ = [f"{n}: README {m!r} vs code {ROW_SCHEMA[n]!r}" for n, m in readme if m != " ".join(ROW_SCHEMA[n].split())]
+        f"\n  order: docs  {names}\n         code   {code}")
+    differ = [f"{n}: docs/rows.md {m!r} vs code {ROW_SCHEMA[n]!r}"
+              for n, m in documented if m != " ".join(ROW_SCHEMA[n].split())]
     assert not differ, "row field meanings differ:\n" + "\n".join(differ)
 
 

@@ -3,7 +3,7 @@
 Every "N cells", "N cases" or "N planners" in README.md, docs/*.md or results/README.md must be one of
 the claims below, each compared with what a command computes: the catalog (``case_names``), a
 matrix's expansion (``load_matrix(...).cells()``) or a committed run's rows. The README's tables of
-planners and catalog cases and its "Layout of the code" must name every planner, case and module.
+planners and catalog cases, and docs/layout.md, must name every planner, case and module.
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def test_catalog_table_covers_every_case():
 def listed_modules() -> set[str]:
     """Paths of the ``.py`` files "Layout of the code" lists, from its indented tree (two spaces a level;
     a line whose first word is no file or folder continues the description above it)."""
-    block = section("README.md", "Layout of the code").split("```")[1]
+    block = (ROOT / "docs/layout.md").read_text(encoding="utf-8").split("```")[1]
     out, folders = set(), []
     for line in block.splitlines():
         name = line.split()[0] if line.strip() else ""
@@ -138,5 +138,5 @@ def test_layout_lists_every_module():
                for p in (ROOT / folder).rglob("*.py") if p.name != "__init__.py"}
     listed = listed_modules()
     assert {m for m in listed if m.startswith("bench/studies/")}, "the parse found no nested folder"
-    assert not on_disk - listed, f"not in README's Layout of the code: {sorted(on_disk - listed)}"
+    assert not on_disk - listed, f"not in docs/layout.md: {sorted(on_disk - listed)}"
     assert not listed - on_disk, f"listed but not in the tree: {sorted(listed - on_disk)}"
