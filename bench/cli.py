@@ -38,10 +38,15 @@ def cli() -> None:
 
 
 @cli.command()
+@click.argument("names", nargs=-1, metavar="[CASE]...")
+@click.option("--reward", is_flag=True,
+              help="Also give the share of random layouts whose Gaussian reward is 0 or 1 (64 uncounted layouts on "
+                   "4 tasks a case: each case's oracle is set up) and warn where it is over half.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list instead of a table.")
-def cases(as_json: bool) -> None:
-    """Table of catalog cases: part, DOFs, candidates (and grid points dropped outside the part or in
-    its holes), agents, pads a robot places, tasks, joint-space size."""
+def cases(names: tuple[str, ...], reward: bool, as_json: bool) -> None:
+    """Table of cases (the catalog's, or the CASE names and paths given): part, DOFs, candidates (and
+    grid points dropped outside the part or in its holes), agents, pads a robot places, tasks,
+    joint-space size; with --reward, whether the case's Gaussian reward widths suit it."""
     from tabulate import tabulate
     from tqdm import tqdm
 
@@ -49,20 +54,25 @@ def cases(as_json: bool) -> None:
     from fixbench.cases.problem import Problem
     from fixbench.cases.spec import case_names, load_case_spec
 
+    specs = [load_case_spec(name) for name in names or case_names()]  # every file checked before any work
     rows = []
-    for name in tqdm(case_names(), desc="meshing cases", disable=as_json or not sys.stderr.isatty()):
-        p = Problem(load_case_spec(name))  # candidates and agents only: nothing is assembled
-        rows.append({"case": name, "part": p.spec.part, "material": p.spec.material.name,
-                     "dofs": dof_count(p.spec),
-                     "candidates": len(p.candidates), "dropped": p.spec.candidates_dropped,
-                     "agents": p.n_agents, "pads": _pads_text(p.spec.effector), "tasks": p.n_tasks,
-                     "joint_size": p.joint_size})
+    for spec in tqdm(specs, desc="meshing cases", disable=as_json or not sys.stderr.isatty()):
+        p = Problem(spec)  # candidates and agents only: nothing is assembled unless --reward
+        row = {"case": spec.name, "part": spec.part, "material": spec.material.name, "dofs": dof_count(spec),
+               "candidates": len(p.candidates), "dropped": spec.candidates_dropped,
+               "agents": p.n_agents, "pads": _pads_text(spec.effector), "tasks": p.n_tasks,
+               "joint_size": p.joint_size}
+        if reward:
+            row["reward_0_or_1"] = _reward_check(p)[0]
+            _warn_degenerate(p, row["reward_0_or_1"])
+        rows.append(row)
     if as_json:
         echo_json(rows)
     else:
-        table = [{**r, "joint_size": f"{r['joint_size']:.3g}"} for r in rows]
+        table = [{**r, "joint_size": f"{r['joint_size']:.3g}",
+                  **({"reward_0_or_1": f"{r['reward_0_or_1']:.0%}"} if reward else {})} for r in rows]
         click.echo(tabulate(table, headers="keys", tablefmt="pipe", disable_numparse=True,
-                            colalign=("left",) * 3 + ("right",) * 7))
+                            colalign=("left",) * 3 + ("right",) * (len(table[0]) - 3)))
 
 
 def _pads_text(eff) -> str:
@@ -91,6 +101,11 @@ def show(case: str, material: str | None, out: Path | None) -> None:
     share, sx, sz = _reward_check(problem)
     click.echo(f"Gaussian reward (sigma_x {sx * 1e6:g} um, sigma_z {sz * 1e6:g} um): {share:.0%} of random layouts "
                "at 0 or 1")
+    _warn_degenerate(problem, share)
+
+
+def _warn_degenerate(problem, share: float) -> None:
+    """A warning on stderr when most random layouts get a Gaussian reward of 0 or 1."""
     if share > 0.5:
         click.echo(f"warning: {problem.spec.source}: [reward] widths are degenerate for this part: {share:.0%} of "
                    "random layouts get a Gaussian reward below 0.001 or above 0.999; the learners' default reward "

@@ -1,9 +1,11 @@
 """The learners' reward works on any part (docs/protocol.md#scaled-reward): scaled from the run's own
-samples, with no width set by hand; ``fixbench show`` warns when a case's Gaussian widths are
+samples, with no width set by hand; ``fixbench show`` and ``fixbench cases --reward`` warn when a case's Gaussian widths are
 degenerate for its part. Measured against random search at 100 samples a position, scored alike
 (the incumbent rule)."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -55,6 +57,17 @@ def test_show_warns_of_degenerate_reward_widths(plate_toml, tmp_path):
     assert "warning:" in bad.output and "degenerate" in bad.output and "100% of random layouts" in bad.output
     good = runner.invoke(cli, ["show", "bus_panel_small", "--out", str(tmp_path / "b.png")])
     assert good.exit_code == 0 and "warning:" not in good.output, good.output
+
+
+def test_cases_warns_of_degenerate_reward_widths(plate_toml):
+    """`fixbench cases CASE... --reward`: the share of random layouts at a reward of 0 or 1 as a column,
+    and the same warning as `show` for a case whose widths are degenerate, not for one whose are not."""
+    result = CliRunner().invoke(cli, ["cases", plate_toml(*EDITS), "bus_panel_small", "--reward", "--json"])
+    assert result.exit_code == 0, result.output
+    rows = {r["case"]: r for r in json.loads(result.stdout)}
+    assert rows["plate"]["reward_0_or_1"] == 1.0 and rows["bus_panel_small"]["reward_0_or_1"] < 0.5, rows
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "plate.toml" in warnings[0] and "degenerate" in warnings[0], result.stderr
 
 
 @pytest.mark.parametrize("case", ["wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small"])
