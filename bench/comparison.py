@@ -226,6 +226,15 @@ def main_columns(rows: pd.DataFrame) -> list[tuple[str, str, str | None]]:
     return [(f"{case} ({mode})", case, mode) for mode in modes for case in cases]
 
 
+def _in_column(scored: pd.DataFrame, case: str, mode: str | None) -> pd.Series:
+    """The rows of one main-table column (:func:`main_columns`): its case, and its mode when the run
+    has several (a row without a mode is per-task)."""
+    pick = scored["case"] == case
+    if mode is not None:
+        pick &= scored["mode"].fillna("per-task") == mode
+    return pick
+
+
 def main_table(rows: pd.DataFrame) -> pd.DataFrame:
     """The README's main table: one line a planner label with the mean relative regret (%) on each
     case, and mode when the run has several (columns ``<name>``, ``<name>_lo``, ``<name>_hi``: 95 % CI
@@ -237,9 +246,7 @@ def main_table(rows: pd.DataFrame) -> pd.DataFrame:
     for label in sorted(rows["label"].unique()):
         rec = {"planner": label}
         for name, case, mode in main_columns(rows):
-            pick = (scored["label"] == label) & (scored["case"] == case)
-            if mode is not None:
-                pick &= scored["mode"].fillna("per-task") == mode
+            pick = (scored["label"] == label) & _in_column(scored, case, mode)
             p, lo, hi = mean_ci(scored.loc[pick, "regret_pct"])
             rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi})
         rec.update(mean_rank=float(ranks.loc[label, "mean"]), problems=int(ranks.loc[label, "size"]))
@@ -272,9 +279,7 @@ def versus_best_table(rows: pd.DataFrame, main: pd.DataFrame,
     for label in contenders[1:]:
         rec = {"planner": label}
         for name, case, mode in main_columns(rows):
-            pick = scored["case"] == case
-            if mode is not None:
-                pick &= scored["mode"].fillna("per-task") == mode
+            pick = _in_column(scored, case, mode)
             x = scored.loc[pick & (scored["label"] == label), "regret_pct"].to_numpy()
             y = scored.loc[pick & (scored["label"] == best), "regret_pct"].to_numpy()
             p, lo, hi = probability_of_improvement(x, y) if len(x) and len(y) else (np.nan,) * 3
@@ -298,9 +303,7 @@ def policy_table(rows: pd.DataFrame) -> pd.DataFrame:
     for label in sorted(scored["label"].unique()):
         rec = {"planner": label}
         for name, case, mode in columns:
-            pick = (scored["label"] == label) & (scored["case"] == case)
-            if mode is not None:
-                pick &= scored["mode"] == mode
+            pick = (scored["label"] == label) & _in_column(scored, case, mode)
             for col, key in ((name, "regret_pct"), (f"{name} policy", "policy_pct")):
                 p, lo, hi = mean_ci(scored.loc[pick, key])
                 rec.update({col: p, f"{col}_lo": lo, f"{col}_hi": hi})
@@ -348,9 +351,7 @@ def iqm_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
     for label in sorted(scored["label"].unique()):
         rec = {"planner": label}
         for name, case, mode in columns:
-            pick = (scored["label"] == label) & (scored["case"] == case)
-            if mode is not None:
-                pick &= scored["mode"].fillna("per-task") == mode
+            pick = (scored["label"] == label) & _in_column(scored, case, mode)
             regrets = [r for r in (_position_regrets(row, refs) for _, row in scored[pick].iterrows())
                        if r is not None]
             values = np.concatenate(regrets) if regrets else np.array([])
