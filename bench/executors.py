@@ -42,9 +42,14 @@ def _worker(conn, threads: int, parent: int) -> None:  # pragma: no cover - runs
     import threading
 
     import numba
+    from tqdm import tqdm
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops us quietly
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
+    # a progress bar in a job (exact's) would make tqdm's cross-process lock, a named semaphore that a
+    # worker stopped by force (Ctrl-C, a cell's timeout) leaves behind, and the resource tracker then
+    # warns of it when the driver exits; one process needs only a thread lock
+    tqdm.set_lock(threading.RLock())
     from fixbench.cases.problem import set_cache_size
 
     numba.set_num_threads(threads)

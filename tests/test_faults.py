@@ -362,9 +362,11 @@ def test_ctrl_c_stops_quietly_keeps_the_rows_and_says_how_to_resume(tmp_path):
                    f'config = {{ gate = "{gate}" }}\n')
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(tmp_path) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    # Ctrl-C's default action for the run, whatever the suite inherited: a shell starts a background job
+    # (`make test &`, a CI step) with SIGINT ignored, and Python then installs no KeyboardInterrupt handler
     proc = subprocess.Popen([sys.executable, "-m", "fixbench", "run", str(m), "--out", str(out), "--workers", "1"],
                             start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            env=env)
+                            env=env, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 900  # a generous bound for a loaded machine, not a timing condition:
     while time.monotonic() < deadline and len(list((out / "rows").glob("*.json"))) < 2:  # the gate holds
         time.sleep(0.05)                                                               # the run open
