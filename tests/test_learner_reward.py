@@ -1,7 +1,7 @@
 """The learners' reward works on any part (docs/protocol.md#scaled-reward): scaled from the run's own
-samples, with no width set by hand; ``fixbench show`` and ``fixbench cases --reward`` warn when a case's Gaussian widths are
-degenerate for its part. Measured against random search at 100 samples a position, scored alike
-(the incumbent rule)."""
+samples, with no width set by hand; ``fixbench show`` and ``fixbench cases --reward`` warn when a
+case's Gaussian widths are degenerate for its part. Measured against random search at 100 samples a
+position, scored alike (the incumbent rule)."""
 
 from __future__ import annotations
 
