@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
 
 from fixbench.bench.cli import main
@@ -33,3 +36,25 @@ def test_a_reported_problem_is_refused_in_one_line(capsys):
     assert main(["tune", "rules", "--trials", "2", "--cases", "wing_panel"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "not a *_small tuning case" in err
+
+
+TUNED = sorted((Path(__file__).resolve().parents[1] / "results" / "tune").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", TUNED, ids=[p.stem for p in TUNED])
+def test_committed_tuned_entries_are_valid_and_within_their_search_space(path, tmp_path):
+    """Each results/tune/PLANNER.toml (`fixbench tune PLANNER --out`) loads as a matrix entry labelled
+    "PLANNER (tuned)", changes only declared tunable fields, each inside its declared range or choices,
+    and says it ended no worse than the defaults on the tuning problems (its first trial)."""
+    text = path.read_text(encoding="utf-8")
+    m = re.match(r"# (\S+): tuned with (\d+) trials on (.+?) \(.*defaults ([\d.]+), tuned ([\d.]+)\n", text)
+    assert m and m[1] == path.stem and int(m[2]) == 20, text.splitlines()[0]
+    assert all(c.endswith("_small") for c in m[3].split(", ")) and float(m[5]) <= float(m[4])
+    matrix = tmp_path / "m.toml"
+    matrix.write_text('name = "t"\ncases = ["fan_small"]\nseeds = [0]\nbudget = 10\n' + text)
+    (cell,) = load_matrix(matrix).cells()
+    assert cell.planner == path.stem and cell.label == f"{path.stem} (tuned)"
+    declared = space(available()[path.stem])
+    for key, value in dict(cell.config).items():
+        kind, *bounds = declared[key]
+        assert value in bounds[0] if kind == "choice" else bounds[0] <= value <= bounds[1], (key, value)
