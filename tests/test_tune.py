@@ -58,3 +58,16 @@ def test_committed_tuned_entries_are_valid_and_within_their_search_space(path, t
     for key, value in dict(cell.config).items():
         kind, *bounds = declared[key]
         assert value in bounds[0] if kind == "choice" else bounds[0] <= value <= bounds[1], (key, value)
+
+
+def test_the_tuning_table_quotes_the_committed_entries():
+    """docs/results.md#tuning has one line per results/tune/PLANNER.toml with its two objectives."""
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text(encoding="utf-8")
+    section = docs.split("\n## Tuning\n", 1)[1].split("\n## ", 1)[0]
+    line = re.compile(r"^\| `([^`]+)` \| ([\d.]+) \(.*?\) \| ([\d.]+) \(", re.M)
+    quoted = {m[1]: (m[2], m[3]) for m in line.finditer(section)}
+    committed = {}
+    for path in TUNED:
+        m = re.search(r"defaults ([\d.]+), tuned ([\d.]+)", path.read_text(encoding="utf-8"))
+        committed[path.stem] = (m[1], m[2])
+    assert quoted == committed
