@@ -356,6 +356,26 @@ def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
     click.echo(matrix_entry(result), nl=False)
 
 
+@cli.command("tune-table")
+@click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--readme", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Also refresh this file's copy of the table (its <!-- table: FOLDER/table.md --> block); "
+                   "repeatable.")
+def tune_table(folder, readme) -> None:
+    """Write FOLDER/table.md, the table of the tuned entries in FOLDER (`fixbench tune PLANNER --out
+    FOLDER/PLANNER.toml`), and print it."""
+    from fixbench.bench.tables import refresh_readme
+    from fixbench.bench.tune import tuning_table
+    from fixbench.cases.files import write_text_atomic
+
+    table = tuning_table(folder)
+    write_text_atomic(folder / "table.md", table)
+    for doc in readme:
+        if not refresh_readme(doc, folder):
+            raise CaseError(str(doc), "", f"has no <!-- table: ... --> block naming {folder / 'table.md'}")
+    click.echo(table, nl=False)
+
+
 @cli.command()
 @click.argument("run_dirs", metavar="RUN_DIR [RUN_DIR ...]", nargs=-1,
                 type=click.Path(exists=True, file_okay=False, path_type=Path))

@@ -20,8 +20,10 @@ Datasets and Benchmarks; Gorsane et al. NeurIPS 2022).
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+import re
 from dataclasses import fields
 from pathlib import Path
 
@@ -58,13 +60,25 @@ def _suggest(trial, key: str, s: tuple):
     return trial.suggest_categorical(key, list(s[1]))
 
 
+@functools.cache
+def _tuning_problem(case: str) -> tuple:
+    """A tuning case's problem and its mean proven optimum (``exact``: minutes of CPU, so computed once
+    a process)."""
+    from fixbench.bench.cells import compute_reference, problem_for
+
+    ref = compute_reference(case, None, None, None, ("per-task",))
+    if ref["error"] or ref["per_task"] is None:
+        raise CaseError(case, "", f"has no regret reference to tune against: {ref['error']}")
+    return problem_for(case, None, None, None), float(np.mean(ref["per_task"]))
+
+
 def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_task: int = 100,
          echo=print) -> dict:
     """Tune ``planner`` with ``trials`` trials; returns {"config": tuned overrides, "default": objective of
     the defaults, "tuned": objective of the tuned config, "trials": [...]}."""
     import optuna
 
-    from fixbench.bench.cells import compute_reference, problem_for
+    from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
     cls = get(planner)
@@ -75,19 +89,23 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
         if not str(case).endswith("_small"):
             raise CaseError("--cases", "", f"'{case}' is not a *_small tuning case: tuning on a problem that is "
                             "reported is not allowed")
-    problems = []
-    for case in cases:
-        p = problem_for(case, None, None, None)
-        ref = compute_reference(case, None, None, None, ("per-task",))  # the proven optimum (exact)
-        if ref["error"] or ref["per_task"] is None:
-            raise CaseError(case, "", f"has no regret reference to tune against: {ref['error']}")
-        problems.append((case, p, float(np.mean(ref["per_task"]))))
+    problems = [(case, *_tuning_problem(case)) for case in cases]
 
-    def score(config: dict) -> float:
+    def score(config: dict, first: bool) -> float:
+        """The objective of ``config``; infinite where it cannot run at this budget (a trial TPE learns
+        to avoid), an error naming the case where the defaults cannot (nothing to compare with)."""
         vals = []
-        for _, p, ref in problems:
+        for case, p, ref in problems:
             for seed in seeds:
-                res = cls(**config).solve(p, samples_per_task * p.n_tasks, seed=seed)
+                try:
+                    res = cls(**config).solve(p, samples_per_task * p.n_tasks, seed=seed)
+                except PlannerError as exc:
+                    if first:
+                        raise CaseError(case, "", f"{planner}'s defaults cannot run on this tuning case at "
+                                        f"{samples_per_task} samples a position, so there is nothing to tune "
+                                        f"against: {exc}") from None
+                    echo(f"{planner}: {json.dumps(config)} cannot run on {case}: {exc}")
+                    return math.inf
                 vals.append(math.log1p(max(res.objective / ref - 1, 0.0)))
         return float(np.mean(vals))
 
@@ -101,7 +119,7 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
     for i in range(trials if spec else 1):
         trial = study.ask()
         config = {k: _suggest(trial, k, s) for k, s in spec.items()}
-        value = score(config)
+        value = score(config, first=i == 0)
         study.tell(trial, value)
         records.append({"trial": i, "config": config, "objective": value})
         echo(f"{planner} trial {i + 1}/{trials}: {json.dumps(config)} -> {value:.4f}")
@@ -133,3 +151,42 @@ def write_entry(result: dict, out: Path) -> None:
     from fixbench.cases.files import write_text_atomic
 
     write_text_atomic(Path(out), matrix_entry(result))
+
+
+#: the figures line ``matrix_entry`` writes above the entry
+_FIGURES = re.compile(r"^# (?P<planner>\S+): tuned with (?P<trials>\d+) trials on .*mean log\(1 \+ regret\): "
+                      r"defaults (?P<default>[\d.]+), tuned (?P<tuned>[\d.]+)$", re.M)
+
+
+def read_entry(path: Path) -> dict:
+    """A tuned entry written by ``write_entry``: planner, trials, the two objectives and the config."""
+    import tomllib
+
+    text = Path(path).read_text(encoding="utf-8")
+    m = _FIGURES.search(text)
+    if not m:
+        raise CaseError(str(path), "", "has no '# PLANNER: tuned with N trials ... defaults X, tuned Y' line "
+                        "(write it with `fixbench tune PLANNER --out FILE`)")
+    try:
+        planners = tomllib.loads(text).get("planners") or [{}]
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(str(path), "", f"is not valid TOML: {exc}") from None
+    return {"planner": m["planner"], "trials": int(m["trials"]), "default": float(m["default"]),
+            "tuned": float(m["tuned"]), "config": dict(planners[0].get("config", {}))}
+
+
+def tuning_table(folder: Path) -> str:
+    """The Markdown table of every tuned entry (``*.toml``) in ``folder``, by planner: the objective of
+    the defaults and of the tuned config, each with the geometric-mean regret it stands for, and the
+    tuned config (``fixbench tune-table``)."""
+    from fixbench.bench.tables import fmt
+
+    def regret(x: float) -> str:
+        return f"{x:.4f} ({math.expm1(x) * 100:.0f} %)"
+
+    lines = ["| planner | trials | defaults: mean log(1 + regret) | tuned | tuned config |", "|---|--:|--:|--:|---|"]
+    for e in sorted((read_entry(p) for p in sorted(Path(folder).glob("*.toml"))), key=lambda e: e["planner"]):
+        cfg = ", ".join(f"{k} = {fmt(v) if isinstance(v, float) else _toml(v)}" for k, v in sorted(e["config"].items()))
+        lines.append(f"| `{e['planner']}` | {e['trials']} | {regret(e['default'])} | {regret(e['tuned'])} | "
+                     f"{cfg or '(the defaults)'} |")
+    return "\n".join(lines) + "\n"

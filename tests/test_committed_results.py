@@ -54,14 +54,16 @@ def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
     assert rows["reference_source"].str.len().gt(0).all()
 
 
-def test_readme_tables_are_the_committed_reports():
-    """Every README table that mirrors a report table (``<!-- table: PATH -->`` blocks) is that table
-    as committed: `fixbench report DIR --readme README.md` refreshes them with the report."""
+@pytest.mark.parametrize("doc", ["README.md", "docs/results.md"])
+def test_readme_tables_are_the_committed_reports(doc):
+    """Every table of the README and docs/results.md that mirrors a committed table (``<!-- table:
+    PATH -->`` blocks) is that table as committed: `fixbench report DIR --readme FILE` and `fixbench
+    tune-table DIR --readme FILE` refresh them."""
     from fixbench.bench.tables import TABLE_BLOCK
 
-    readme = ROOT.parent / "README.md"
+    readme = ROOT.parent / doc
     blocks = list(TABLE_BLOCK.finditer(readme.read_text(encoding="utf-8")))
-    assert blocks, "README mirrors no report table"
+    assert blocks, f"{doc} mirrors no committed table"
     for m in blocks:
         path = readme.parent / m["path"]
         assert path.is_file(), m["path"]

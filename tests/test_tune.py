@@ -10,7 +10,7 @@ import pytest
 
 from fixbench.bench.cli import main
 from fixbench.bench.matrix import load_matrix
-from fixbench.bench.tune import matrix_entry, space, tune
+from fixbench.bench.tune import matrix_entry, space, tune, tuning_table
 from fixbench.solvers import available
 
 
@@ -60,14 +60,35 @@ def test_committed_tuned_entries_are_valid_and_within_their_search_space(path, t
         assert value in bounds[0] if kind == "choice" else bounds[0] <= value <= bounds[1], (key, value)
 
 
-def test_the_tuning_table_quotes_the_committed_entries():
-    """docs/results.md#tuning has one line per results/tune/PLANNER.toml with its two objectives."""
-    docs = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text(encoding="utf-8")
-    section = docs.split("\n## Tuning\n", 1)[1].split("\n## ", 1)[0]
-    line = re.compile(r"^\| `([^`]+)` \| ([\d.]+) \(.*?\) \| ([\d.]+) \(", re.M)
-    quoted = {m[1]: (m[2], m[3]) for m in line.finditer(section)}
-    committed = {}
-    for path in TUNED:
-        m = re.search(r"defaults ([\d.]+), tuned ([\d.]+)", path.read_text(encoding="utf-8"))
-        committed[path.stem] = (m[1], m[2])
-    assert quoted == committed
+def test_the_tuning_table_is_made_from_the_committed_entries():
+    """results/tune/table.md (which docs/results.md#tuning mirrors, test_committed_results) is
+    `fixbench tune-table results/tune` of the committed entries, one line per planner."""
+    folder = TUNED[0].parent
+    table = (folder / "table.md").read_text(encoding="utf-8")
+    assert table == tuning_table(folder)
+    assert [line.split("`")[1] for line in table.splitlines()[2:]] == [p.stem for p in TUNED]
+
+
+def test_tune_table_writes_refreshes_and_refuses_a_broken_entry(tmp_path, capsys):
+    folder = tmp_path / "tune"
+    folder.mkdir()
+    (folder / "pso.toml").write_text(TUNED[0].parent.joinpath("pso.toml").read_text(encoding="utf-8"))
+    doc = tmp_path / "doc.md"
+    doc.write_text("# t\n<!-- table: tune/table.md -->\nstale\n<!-- /table -->\n")
+    assert main(["tune-table", str(folder), "--readme", str(doc)]) == 0
+    table = (folder / "table.md").read_text(encoding="utf-8")
+    assert "| `pso` | 20 | 0.5516 (74 %) | 0.1436 (15 %) | c1 = 2.73," in table
+    assert doc.read_text() == "# t\n<!-- table: tune/table.md -->\n" + table + "<!-- /table -->\n"
+    capsys.readouterr()
+    (folder / "odd.toml").write_text("[[planners]]\nname = 'odd'\n")
+    assert main(["tune-table", str(folder)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "odd.toml" in err and "tuned with N trials" in err
+    assert (folder / "table.md").read_text(encoding="utf-8") == table  # nothing already written lost
+
+
+def test_defaults_that_cannot_run_on_a_tuning_case_are_refused_naming_it(capsys):
+    """qp's compliance read alone costs more than one sample a position: nothing to tune against."""
+    assert main(["tune", "qp", "--trials", "2", "--cases", "wing_panel_small", "--samples-per-task", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("fixbench: wing_panel_small: qp's defaults cannot run") and "budget too small" in err
