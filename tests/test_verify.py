@@ -71,6 +71,12 @@ def test_a_tiny_run_agrees_with_itself(tiny_run, capsys):
     assert "code path differs" not in out  # rerun on the host that made the rows
 
 
+def test_a_busy_machine_is_warned_of(tiny_run, capsys, monkeypatch):
+    monkeypatch.setattr("os.getloadavg", lambda: (64.0, 64.0, 64.0))
+    assert main(["verify", str(tiny_run / "run"), "--workers", "1", "--cells", "1"]) == 0
+    assert "fixbench: verify: load average 64.0 on " in capsys.readouterr().err
+
+
 def test_a_tampered_value_is_caught(tiny_run, capsys):
     run = tiny_run / "run"
     was = _objectives(run, "greedy")
