@@ -414,15 +414,9 @@ def report(run_dirs, with_runs, out, no_fields, readme) -> None:
 def verify(run_dir, k, seed, only, workers) -> None:
     """Rerun K cells of RUN_DIR here and print the committed and the new value of each; exit 1 when
     one disagrees (bench/verify.py)."""
-    import os
-
     from fixbench.bench.verify import show
     from fixbench.bench.verify import verify as rerun
 
-    load, cores = os.getloadavg()[0], os.cpu_count() or 1
-    if load >= max(1.0, cores / 2):
-        click.echo(f"fixbench: verify: load average {load:.1f} on {cores} cores: the cells will take longer "
-                   "than their committed times, multi-threaded learners longest; an idle machine is best", err=True)
     records = rerun(run_dir, k, seed, tuple(x.strip() for x in (only or "").split(",") if x), workers,
                     echo=lambda m: click.echo(m, err=True))
     click.echo(show(records))

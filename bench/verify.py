@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -106,12 +107,25 @@ def verify(run_dir: str | Path, k: int = 10, seed: int = 0, only: tuple[str, ...
         echo(f"{len(records)}/{len(jobs)} {rec['planner']} on {rec['case']}/{rec['material']} ({rec['mode']}, "
              f"seed {rec['seed']}): {rec['verdict']}")
 
+    busy = busy_warning()
+    if busy:
+        echo(busy)
     ex = make_executor("local", workers, None, None, env=worker_env(run_dir))
     try:
         ex.run(jobs, on_cell)
     finally:
         ex.close()
     return [records[cid] for cid in picked["cell"]]
+
+
+def busy_warning() -> str | None:
+    """The warning for a busy machine (load average at least half the cores, and at least 1), given
+    only once the run has passed its checks, so that a refusal stays one line."""
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    if load < max(1.0, cores / 2):
+        return None
+    return (f"fixbench: verify: load average {load:.1f} on {cores} cores: the cells will take longer than "
+            "their committed times, multi-threaded learners longest; an idle machine is best")
 
 
 def judge(old: pd.Series, new: dict, done: pd.DataFrame) -> dict:

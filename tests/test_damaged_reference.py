@@ -66,7 +66,8 @@ def _scored_run(root, source: str):
 
 
 @pytest.mark.parametrize("command", ["report", "verify"])
-def test_rows_scored_against_another_reference_are_refused(catalog, tmp_path, capsys, command):
+def test_rows_scored_against_another_reference_are_refused(catalog, tmp_path, capsys, monkeypatch, command):
+    monkeypatch.setattr("os.getloadavg", lambda: (64.0, 64.0, 64.0))  # a busy machine: still one line
     shipped = json.loads((catalog / FILE).read_text())["content_hash"]
     run = _scored_run(tmp_path / "run", f"catalog reference {FILE} (content {'0' * 16})")
     assert main([command, str(run)]) == 2
