@@ -55,8 +55,10 @@ of every candidate would cost ``per * n`` samples (wing_panel: 3 x 3,333 = 9,999
 dense rows x rows data would need more than 8 GB (measured: stopped after 13 minutes at 8.8 GB).
 So each agent's set is screened to evenly spaced candidates in its set's order before anything is
 read, as many as ``max_rows`` allows (wing_panel, 5 agents, 3 components: 40 a agent), or
-``max_candidates_per_agent`` if smaller (no sample spent on the screening; the screened-out
-candidates are never chosen; ``info["candidates_per_agent"]`` says what was kept).
+``max_candidates_per_agent`` if smaller, and so that the reads take at most ``max_read_share`` of
+the budget (on the four ``*_small`` cases at 100 samples a task: wing_spar_small keeps 10 of its 20
+candidates an agent) (no sample spent on the screening; the screened-out candidates are never
+chosen; ``info["candidates_per_agent"]`` says what was kept).
 
 Robots that place m pads (``Effector``): the weights of a robot's candidates sum to m (at most m
 when it may idle, in all at most the pad limit), each at most 1; rounding takes each robot's action
@@ -65,6 +67,7 @@ whose pads hold the most force mass and polishes over the actions nearest to it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -129,6 +132,13 @@ class QPConfig(PlannerConfig):
     dense rows x rows and OSQP refactors them every solve: on the full wing panel (10 tasks of the
     protocol, measured) 600 rows take 0.7 s a task and 0.9 GB, 1,200 rows about 5 s a task."""
 
+    max_read_share: float = 0.5
+    """Most of the budget the compliance reads may take: where reading the screened candidates
+    would cost more, each agent's set is screened further, to ``max_read_share x budget //
+    (components x agents)`` candidates (1 = no limit; an unlimited budget has none). Without it a
+    case of few tasks could not be planned at all: wing_spar_small, 5 agents, 100 samples a task
+    (300 in all) costs 300 samples to read its 100 candidates' 3 components, none left."""
+
     eps: float = 1e-5
     """OSQP absolute and relative tolerance."""
 
@@ -140,6 +150,7 @@ class QPConfig(PlannerConfig):
         require(self, "big_m", self.big_m > 0, "positive")
         require(self, "m_scales", len(self.m_scales) > 0 and min(self.m_scales) > 0, "positive numbers (at least one)")
         require(self, "eps", self.eps > 0, "positive")
+        require(self, "max_read_share", 0 < self.max_read_share <= 1, "in (0, 1]")
         at_least(self, 0, "field_weight", "ridge", "samples_per_task", "max_candidates_per_agent", "max_rows")
         at_least(self, 1, "pool", "max_iter")
         at_least(self, -1, "polish_samples")
@@ -153,7 +164,7 @@ class QPPlanner(Planner):
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
-        sets = screened_sets(problem, self.screen_limit(problem))
+        sets = screened_sets(problem, self.screen_limit(problem, ev.remaining))
         cand = np.concatenate(sets)
         order = np.argsort(cand)
         cand_sorted = cand[order]
@@ -187,15 +198,18 @@ class QPPlanner(Planner):
         return layouts, info
 
 
-    def screen_limit(self, problem: Problem) -> int:
-        """Candidates per agent to read: the config's limit, tightened to fit ``max_rows``."""
+    def screen_limit(self, problem: Problem, budget: float = math.inf) -> int:
+        """Candidates per agent to read: the config's limit, tightened to fit ``max_rows`` QP rows
+        and reads of at most ``max_read_share`` of ``budget`` samples."""
         cfg = self.config
         limit = cfg.max_candidates_per_agent
         per = sum(fo.per for fo in problem.oracle.fields.values())  # held components: structure, not data
-        sizes = [len(a) if limit <= 0 else min(limit, len(a)) for a in problem.candidate_sets]
-        if cfg.max_rows > 0 and per * sum(sizes) > cfg.max_rows:
-            fit = max(1, cfg.max_rows // (per * problem.n_agents))
-            limit = fit if limit <= 0 else min(limit, fit)
+        caps = [cfg.max_rows if cfg.max_rows > 0 else math.inf, cfg.max_read_share * budget]
+        for cap in caps:
+            sizes = [len(a) if limit <= 0 else min(limit, len(a)) for a in problem.candidate_sets]
+            if per * sum(sizes) > cap:
+                fit = max(1, int(cap) // (per * problem.n_agents))
+                limit = fit if limit <= 0 else min(limit, fit)
         return limit
 
 

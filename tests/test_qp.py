@@ -39,7 +39,20 @@ def test_budget_never_exceeded_and_too_small_refused(fan):
     r = QPPlanner().solve(fan, 300, seed=0)
     assert r.samples <= 300
     with pytest.raises(PlannerError, match="budget too small"):
-        QPPlanner().solve(fan, 100, seed=0)
+        QPPlanner().solve(fan, 15, seed=0)  # one candidate an agent (9 reads) + 12 responses
+
+
+@pytest.mark.parametrize("budget, kept", [(100, 5), (600, 28)])
+def test_reads_take_at_most_their_share_of_the_budget(fan, budget, kept):
+    """A budget too small to read every candidate screens the sets further (max_read_share of it,
+    half by default) instead of refusing: at 100 samples 5 candidates an agent (45 reads), at 600
+    all 28 (252 reads)."""
+    r = QPPlanner().solve(fan, budget, seed=0)
+    assert r.info["candidates_per_agent"] == [kept] * 3
+    assert r.info["compliance_samples"] == 3 * 3 * kept <= budget / 2
+    assert r.samples == budget  # what the reads leave is spent on polish and revision
+    fan.check_layouts(r.layouts)
+    assert QPPlanner(max_read_share=1.0).solve(fan, 300, seed=0).info["candidates_per_agent"] == [28] * 3
 
 
 def test_same_seed_same_result(fan):
