@@ -59,6 +59,8 @@ CLAIMS = [
     ("docs/results.md", r"[\d,]+ of the (?P<n>[\d,]+) cells of the paper matrix", lambda: len(matrix("paper").cells())),
     ("docs/results.md", r"(?P<n>[\d,]+) of the [\d,]+ cells of the paper matrix", lambda: len(rows("paper"))),
     ("docs/results.md", r"cells of the paper matrix, (?P<n>\d+) failed", lambda: failed("paper")),
+    ("docs/results.md", r"The (?P<n>\d+) cells not yet run", lambda: len(matrix("paper").cells()) - len(rows("paper"))),
+    ("README.md", r"\((?P<n>\d+) cells not yet run\)", lambda: len(matrix("paper").cells()) - len(rows("paper"))),
     ("docs/results.md", r"The sweep holds all (?P<n>[\d,]+) of its cells", lambda: len(matrix("sweep").cells())),
     ("docs/results.md", r"The sweep holds all (?P<n>[\d,]+) of its cells", lambda: len(rows("sweep"))),
     ("docs/results.md", r"The sweep holds all [\d,]+ of its cells, (?P<n>\d+) failed", lambda: failed("sweep")),
