@@ -56,9 +56,10 @@ dense rows x rows data would need more than 8 GB (measured: stopped after 13 min
 So each agent's set is screened to evenly spaced candidates in its set's order before anything is
 read, as many as ``max_rows`` allows (wing_panel, 5 agents, 3 components: 40 a agent), or
 ``max_candidates_per_agent`` if smaller, and so that the reads take at most ``max_read_share`` of
-the budget (on the four ``*_small`` cases at 100 samples a task: wing_spar_small keeps 10 of its 20
-candidates an agent) (no sample spent on the screening; the screened-out candidates are never
-chosen; ``info["candidates_per_agent"]`` says what was kept).
+the budget (the four ``*_small`` cases at 100 samples a task keep 13 candidates an agent on
+wing_panel_small and bus_panel_small, 10 of 20 on wing_spar_small, all 28 on fan_small). No
+sample is spent on the screening; the screened-out candidates are never chosen;
+``info["candidates_per_agent"]`` says what was kept.
 
 Robots that place m pads (``Effector``): the weights of a robot's candidates sum to m (at most m
 when it may idle, in all at most the pad limit), each at most 1; rounding takes each robot's action
@@ -135,9 +136,10 @@ class QPConfig(PlannerConfig):
     max_read_share: float = 0.5
     """Most of the budget the compliance reads may take: where reading the screened candidates
     would cost more, each agent's set is screened further, to ``max_read_share x budget //
-    (components x agents)`` candidates (1 = no limit; an unlimited budget has none). Without it a
-    case of few tasks could not be planned at all: wing_spar_small, 5 agents, 100 samples a task
-    (300 in all) costs 300 samples to read its 100 candidates' 3 components, none left."""
+    (components x agents)`` candidates (1: the reads may take the whole budget; an unlimited budget
+    sets no limit). Without it a case of few tasks could not be planned at all: wing_spar_small,
+    5 agents, 100 samples a task (300 in all) costs 300 samples to read its 100 candidates' 3
+    components, none left."""
 
     eps: float = 1e-5
     """OSQP absolute and relative tolerance."""
