@@ -32,7 +32,7 @@ from pathlib import Path
 
 from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_text_atomic
-from fixbench.cases.spec import read_toml, resolve_case
+from fixbench.cases.spec import drawing_digests, read_toml, resolve_case
 
 FORMAT = 1
 REFERENCE_DIR = Path(__file__).parent / "catalog" / "references"
@@ -46,7 +46,10 @@ def reference_path(case: str, material: str, agents: int, folder: Path | None = 
 def case_fingerprint(case: str | Path, material: str, agents: int) -> str:
     """What a reference's numbers depend on: the case's merged TOML, the material and the agents."""
     data, _ = read_toml(resolve_case(case))
-    text = json.dumps({"case": data, "material": material, "agents": int(agents)}, sort_keys=True, default=str)
+    body = {"case": data, "material": material, "agents": int(agents)}
+    if drawings := drawing_digests(data):  # a DXF outline: its contents, not only its path
+        body["drawings"] = drawings
+    text = json.dumps(body, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

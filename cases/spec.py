@@ -8,6 +8,8 @@ one-line :class:`~fixbench.cases.errors.CaseError` naming file, key and problem.
 
 from __future__ import annotations
 
+import hashlib
+import os
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -18,12 +20,15 @@ import shapely
 from fixbench.cases.errors import CaseError
 from fixbench.cases.geometry import build_polygon
 from fixbench.cases.materials import MATERIALS, Material
+from fixbench.cases.shapes import Shape, base_name, drill_points, one_of, parse_shape, written
 from fixbench.cases.units import Reader
 
 CATALOG = Path(__file__).parent / "catalog"
 DOF_NAMES = ("ux", "uy", "w", "rot")
 SUPPORT_KINDS = {"clamped": ("ux", "uy", "w", "rot"), "pinned": ("ux", "uy", "w"),
                  "simple": ("w",), "membrane": ("ux", "uy")}
+#: where a base support holds the part, as a message lists the keys
+SUPPORT_PLACES = {"segment": "segment_<unit>", "hole": "hole", "boundary": "boundary", "point": "point_<unit>"}
 FIELD_OF = {"ux": "membrane", "uy": "membrane", "w": "bending", "rot": "bending"}
 #: standard gravity (m/s^2): the ``weight`` load is rho g t along -z
 STANDARD_GRAVITY = 9.80665
@@ -32,17 +37,6 @@ STANDARD_GRAVITY = 9.80665
 # ---------------------------------------------------------------------------------------------
 # dataclasses (SI units throughout)
 # ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Shape:
-    """One shape of the outline: ``op`` is union or difference; ``polygon`` is its vertices."""
-
-    op: str
-    polygon: np.ndarray  # (n, 2) m
-    copies: int = 1
-    about: tuple[float, float] = (0.0, 0.0)
-    key: str = "outline_mm"  # where it came from in the file, for error messages
-
-
 @dataclass(frozen=True)
 class Refine:
     """Mesh refinement: element size ``size`` within ``width`` of the points, graded outside."""
@@ -247,6 +241,7 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> tuple[dict, str]:
         raise CaseError(source, "", f"not valid TOML ({exc})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise CaseError(source, "", f"cannot read ({exc})") from None
+    _anchor_dxf_paths(data, path.parent)
     base = data.get("case", {}).get("extends") if isinstance(data.get("case"), dict) else None
     if base is None:
         return data, source
@@ -261,6 +256,30 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> tuple[dict, str]:
     base_data.get("case", {}).pop("name", None)
     data["case"].pop("extends")
     return _merge(base_data, data), source
+
+
+def _anchor_dxf_paths(data: dict, folder: Path) -> None:
+    """A shape's DXF path is relative to the file that names it (so a case that ``extends`` one in
+    another folder still finds the base's drawing)."""
+    geometry = data.get("geometry")
+    shapes = geometry.get("shapes") if isinstance(geometry, dict) else None
+    for shape in shapes if isinstance(shapes, list) else ():
+        for k, v in shape.items() if isinstance(shape, dict) else ():
+            if base_name(k) == "dxf" and isinstance(v, str):
+                shape[k] = os.path.normpath(folder / v)
+
+
+def drawing_digests(data: dict) -> dict[str, str]:
+    """sha256 of each DXF file a merged case (:func:`read_toml`) draws its shapes from, by path: what a
+    reference's fingerprint adds to the case's TOML, so that a changed drawing is a changed case."""
+    geometry = data.get("geometry")
+    shapes = geometry.get("shapes") if isinstance(geometry, dict) else None
+    out = {}
+    for shape in shapes if isinstance(shapes, list) else ():
+        for k, v in shape.items() if isinstance(shape, dict) else ():
+            if base_name(k) == "dxf" and isinstance(v, str) and Path(v).is_file():
+                out[v] = hashlib.sha256(Path(v).read_bytes()).hexdigest()
+    return out
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -350,27 +369,7 @@ def _geometry(r: Reader) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
     if r.has("outline"):
         shapes.append(Shape("union", r.array("outline", "length", shape=(-1, 2)),
                             key=r._unit_key("outline", None) or "outline_mm"))
-    for s in r.tables("shapes"):
-        op = s.text("op", "union", ("union", "difference"))
-        kinds = [k for k in ("polygon", "circle", "rectangle") if s.has(k)]
-        if len(kinds) != 1:
-            raise s.error("polygon_mm", "give exactly one of polygon_*, circle_*, rectangle_*")
-        if kinds[0] == "polygon":
-            poly = s.array("polygon", "length", shape=(-1, 2))
-        elif kinds[0] == "circle":
-            c = s.array("circle", "length", shape=(3,))
-            if c[2] <= 0:
-                raise s.error("circle_mm", "radius (third value) must be positive")
-            poly = np.asarray(shapely.Point(c[:2]).buffer(c[2], quad_segs=16).exterior.coords)[:-1]
-        else:
-            x0, y0, x1, y1 = s.array("rectangle", "length", shape=(4,))
-            if x1 <= x0 or y1 <= y0:
-                raise s.error("rectangle_mm", "must be [x0, y0, x1, y1] with x1 > x0 and y1 > y0")
-            poly = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-        copies = s.integer("copies", 1, minimum=1)
-        about = tuple(s.array("about", "length", np.zeros(2), shape=(2,)))
-        s.finish()
-        shapes.append(Shape(op, poly, copies, about, key=s.prefix.split(".", 1)[1]))
+    shapes.extend(parse_shape(s) for s in r.tables("shapes"))
     if not shapes:
         raise r.error("outline_mm", "missing (or give [[geometry.shapes]])")
     if shapes[0].op != "union":
@@ -438,9 +437,7 @@ def _boundary_segment(r: Reader, polygon: shapely.Polygon) -> np.ndarray:
 def _support(r: Reader, polygon: shapely.Polygon) -> Support:
     holds = _holds(r, ..., DOF_NAMES)
     name = r.text("name", "support")
-    where = [k for k in ("segment", "hole", "boundary", "point") if r.has(k)]
-    if len(where) != 1:
-        raise r.error("segment_mm", "give exactly one of segment_*, hole, boundary, point_*")
+    where = one_of(r, SUPPORT_PLACES, "no place")
     sup: Support
     if where[0] == "segment":
         seg = _boundary_segment(r, polygon)
@@ -532,11 +529,24 @@ def _agents(r: Reader, candidates: np.ndarray):
             if not inside.any():
                 raise r.error(f"regions[{i}]", f"region '{name}' holds no fixture candidate")
             owner[inside] = i
+        _check_owned(r, candidates, owner < 0)
     elif count > len(candidates):
         raise r.error("count", f"{count} agents but only {len(candidates)} fixture candidates")
     effector = _effector(r, count)
     r.finish()
     return count, tuple(regions), effector
+
+
+def _check_owned(r: Reader, candidates: np.ndarray, unowned: np.ndarray) -> None:
+    """Every candidate must lie in a region (strictly inside: a point on a region's edge is in none)."""
+    if not unowned.any():
+        return
+    pts = candidates[unowned] * 1e3
+    (x0, y0), (x1, y1) = pts.min(axis=0), pts.max(axis=0)
+    first = ", ".join(f"({x:.1f}, {y:.1f})" for x, y in pts[:3])
+    raise r.error("regions", f"{len(pts)} of {len(candidates)} fixture candidates lie in no region "
+                  f"(a point on a region's edge is in none), within x {x0:.1f}..{x1:.1f}, "
+                  f"y {y0:.1f}..{y1:.1f} mm, first at {first} mm: every candidate needs one robot")
 
 
 def _effector(r: Reader, n_agents: int) -> Effector:
@@ -570,7 +580,7 @@ def _load(r: Reader, polygon: shapely.Polygon) -> Load:
         ld = Load(kind, magnitude=r.number("speed", "angular_speed", nonneg=True),
                   at=r.array("center", "length", shape=(2,)))
     elif kind == "patch":
-        ld = _patch(r, r.array("at", "length", shape=(2,)), polygon)
+        ld = _patch(r, r.array("at", "length", shape=(2,)), polygon, written(r, "at"))
     else:
         seg = _boundary_segment(r, polygon)
         ld = Load(kind, force=r.array("force", "force", shape=(3,)), segment=seg)
@@ -578,7 +588,7 @@ def _load(r: Reader, polygon: shapely.Polygon) -> Load:
     return ld
 
 
-def _patch(r: Reader, at: np.ndarray, polygon: shapely.Polygon) -> Load:
+def _patch(r: Reader, at: np.ndarray, polygon: shapely.Polygon, at_key: str = "at_mm") -> Load:
     force = r.array("force", "force", shape=(3,))
     radius = r.number("radius", "length", nonneg=True)
     shape = r.text("patch", "disc", ("disc", "edge"))
@@ -589,8 +599,7 @@ def _patch(r: Reader, at: np.ndarray, polygon: shapely.Polygon) -> Load:
         raise r.error("radius_mm", "an edge patch needs a positive radius")
     if not polygon.buffer(1e-9).covers(shapely.Point(at)):
         x, y = at * 1e3
-        raise r.error("at_mm" if r.has("at") else "line_mm",
-                      f"load point ({x:.1f}, {y:.1f}) mm lies outside the part")
+        raise r.error(at_key, f"load point ({x:.1f}, {y:.1f}) mm lies outside the part")
     return Load("patch", force=force, at=at, radius=radius, patch_shape=shape)
 
 
@@ -602,16 +611,11 @@ def _tasks(top: Reader, polygon: shapely.Polygon) -> tuple[Task, ...]:
         kind = g.text("kind", choices=("drilling", "loads"))
         name = g.text("name", kind)
         if kind == "drilling":
-            if g.has("points"):
-                points = g.array("points", "length", shape=(-1, 2))
-            else:
-                a, b = g.array("line", "length", shape=(2, 2))
-                count = g.integer("count", minimum=1)
-                points = a + np.outer(np.linspace(0.0, 1.0, count), b - a)
+            points, key = drill_points(g, polygon)
             template = {k: v for k, v in g.data.items() if k.split("_")[0] in ("force", "radius", "patch")}
             for i, p in enumerate(points):
                 sub = Reader(template, g.source, g.prefix)
-                ld = _patch(sub, p, polygon)
+                ld = _patch(sub, p, polygon, key)
                 tasks.append(Task(f"{name} {i}", (ld,) + background, (p - lo) / (hi - lo)))
             for k in template:
                 g.used.add(k)

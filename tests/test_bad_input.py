@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -100,6 +101,81 @@ def test_bad_input_writes_nothing(plate_toml, tmp_path, capsys):
     path = plate_toml(("thickness_mm = 5", "thickness_mm = -5"))
     _one_line_error(capsys, ["show", path, "--out", str(out)])
     assert out.read_bytes() == b"old picture"
+
+
+OUTLINE = "outline_mm = [[0, 0], [400, 0], [400, 200], [0, 200]]\n"
+DXF = Path(__file__).parent / "data" / "plate_holes.dxf"  # written by tests/data/make_dxf.py
+DRILL_LINE = "line_mm = [[350, 100], [380, 100]]\ncount = 3"
+
+
+def _shape(*lines: str) -> tuple[str, str]:
+    """An edit of the test plate adding one [[geometry.shapes]] table after its outline."""
+    return OUTLINE, OUTLINE + "[[geometry.shapes]]\n" + "".join(line + "\n" for line in lines)
+
+
+def _regions(*boxes: tuple[int, int]) -> tuple[str, str]:
+    """Agents' regions spanning x0..x1 (mm) of the plate's full height, one a box."""
+    text = "".join(f'[[agents.regions]]\nname = "r{i}"\npolygon_mm = [[{a}, 0], [{b}, 0], [{b}, 200], [{a}, 200]]\n'
+                   for i, (a, b) in enumerate(boxes))
+    return "count = 2\n", f"count = {len(boxes)}\n{text}"
+
+
+# (id, edits to the valid plate, text the one line must contain: the key as written and the problem)
+BAD_SHAPES = [
+    ("unknown shape key", [_shape('op = "difference"', "triangle_mm = [1, 2, 3]")],
+     ["geometry.shapes[0].triangle_mm: unknown key", "ellipse_<unit>", "slot_<unit>", "dxf or dxf_<unit>"]),
+    ("two kinds in one shape", [_shape('op = "difference"', "circle_mm = [250, 100, 20]",
+                                       "rectangle_mm = [220, 70, 280, 130]")],
+     ["geometry.shapes[0].rectangle_mm: conflicts with circle_mm", "give exactly one of"]),
+    ("key of another kind", [_shape('op = "difference"', "circle_mm = [250, 100, 20]", "corner_radius_mm = 5")],
+     ["geometry.shapes[0].corner_radius_mm: only rectangle_<unit> takes it, not circle_mm"]),
+    ("corner radius too large", [_shape('op = "difference"', "rectangle_mm = [220, 70, 280, 130]",
+                                        "corner_radius_mm = 30")],
+     ["geometry.shapes[0].corner_radius_mm", "less than half the shorter side (30 mm)"]),
+    ("shape of no kind", [_shape('op = "difference"')], ["geometry.shapes[0]: no shape: give one of"]),
+    ("offset that erases the shape", [_shape('op = "difference"', "ellipse_mm = [250, 100, 30, 10]",
+                                             "offset_mm = -20")],
+     ["geometry.shapes[0].offset_mm", "leaves nothing"]),
+    ("drill point listed outside", [(DRILL_LINE, "points_mm = [[350, 100], [480, 100]]")],
+     ["tasks[0].points_mm: load point (480.0, 100.0) mm lies outside the part"]),
+    ("two sources of drill points", [(DRILL_LINE, "points_mm = [[350, 100]]\n" + DRILL_LINE)],
+     ["tasks[0].line_mm: conflicts with points_mm"]),
+    ("curve of a hole the part lacks", [(DRILL_LINE, 'along = "hole 0"\ncount = 4')],
+     ["tasks[0].along", "the part has no hole"]),
+    ("pitch longer than the curve", [(DRILL_LINE, 'along = "outer"\noffset_mm = 10\npitch_mm = 2000')],
+     ["tasks[0].pitch_mm: is longer than the curve (1120.0 mm)"]),
+    ("regions leaving a gap", [_regions((0, 150), (250, 400))],
+     ["agents.regions: 2 of 6 fixture candidates lie in no region", "(200.0, 50.0), (200.0, 150.0) mm"]),
+    ("region edge on a candidate", [_regions((0, 200), (200, 400))],
+     ["agents.regions: 2 of 6 fixture candidates lie in no region", "x 200.0..200.0, y 50.0..150.0 mm"]),
+    ("DXF with a note", [(OUTLINE, f'[[geometry.shapes]]\ndxf = "{DXF}"\n')],
+     ["geometry.shapes[0].dxf", "a TEXT on layer 'NOTES' is not a curve", "layers = [...]"]),
+    ("DXF units in conflict", [(OUTLINE, f'[[geometry.shapes]]\ndxf_cm = "{DXF}"\nlayers = ["OUTLINE"]\n')],
+     ["geometry.shapes[0].dxf_cm", "declares millimeters ($INSUNITS = 4)"]),
+    ("DXF unit unknown", [(OUTLINE, f'[[geometry.shapes]]\ndxf_in = "{DXF}"\n')],
+     ["geometry.shapes[0].dxf_in", "unknown unit 'in'", "plain dxf"]),
+    ("DXF missing", [(OUTLINE, '[[geometry.shapes]]\ndxf = "no_such.dxf"\n')],
+     ["geometry.shapes[0].dxf", "no_such.dxf", "cannot read"]),
+]
+
+
+@pytest.mark.parametrize("label,edits,needles", BAD_SHAPES, ids=[b[0] for b in BAD_SHAPES])
+def test_bad_shape_or_placement(capsys, plate_toml, tmp_path, label, edits, needles):
+    """Refused when loaded: one line naming the key as the file writes it, exit 2, the picture that
+    `fixbench show --out` would have replaced left as it was."""
+    out = tmp_path / "pic.png"
+    out.write_bytes(b"old picture")
+    line = _one_line_error(capsys, ["show", plate_toml(*edits), "--out", str(out)])
+    assert "plate.toml" in line
+    for needle in needles:
+        assert needle in line, line
+    assert out.read_bytes() == b"old picture"
+
+
+def test_cases_refuses_candidates_no_robot_owns(capsys, plate_toml):
+    """`fixbench cases FILE` no longer lists a case whose regions leave candidates unowned."""
+    line = _one_line_error(capsys, ["cases", plate_toml(_regions((0, 150), (250, 400)))])
+    assert "agents.regions: 2 of 6 fixture candidates lie in no region" in line
 
 
 def test_console_script_exit_code(plate_toml):
