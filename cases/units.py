@@ -112,9 +112,8 @@ class Reader:
             return default
         if not _is_number(value):
             raise self.error(key, f"must be a number, got {type(value).__name__}")
-        value = float(value) * self._factor(key, name, dim)
-        self._check_value(key, value, positive, nonneg)
-        return value
+        self._check_value(key, float(value), positive, nonneg)  # as written: the message quotes the file
+        return float(value) * self._factor(key, name, dim)
 
     def integer(self, name: str, default: Any = ..., minimum: int | None = None) -> int:
         value = self.raw(name, default)
@@ -142,9 +141,8 @@ class Reader:
             if arr.ndim != len(shape) or any(s not in (-1, n) for s, n in zip(shape, arr.shape)):
                 want = " x ".join("N" if s == -1 else str(s) for s in shape)
                 raise self.error(key, f"must have shape {want}, got {' x '.join(map(str, arr.shape))}")
-        arr = arr * self._factor(key, name, dim)
         self._check_value(key, arr, positive, nonneg)
-        return arr
+        return arr * self._factor(key, name, dim)
 
     def _quantity(self, name: str, dim: str | None, default: Any) -> tuple[Any, str]:
         if dim is None:

@@ -29,7 +29,7 @@ BAD_FILES = [
     ("part free to move rigidly", [('kind = "clamped"', 'kind = "simple"')],
      ["supports", "free to move rigidly out of plane"]),
     ("negative thickness", [("thickness_mm = 5", "thickness_mm = -5")],
-     ["geometry.thickness_mm", "must be positive"]),
+     ["geometry.thickness_mm", "must be positive, got -5"]),
     ("NaN load", [("force_N = [10, 0, -100]", "force_N = [nan, 0, -100]")], ["force_N", "finite"]),
     ("unknown unit", [("thickness_mm = 5", "thickness_in = 0.2")], ["geometry.thickness_in", "unknown unit"]),
     ("unit missing", [("thickness_mm = 5", "thickness = 5")], ["geometry.thickness", "unit in the key"]),
