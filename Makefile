@@ -3,8 +3,13 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+TESTED := $(VENV)/.installed-test
+# Lines of requirements.lock installed --no-deps, for the tests only: the marl extra (benchmarl, torchrl,
+# tensordict) and marl-eval's loader. Their declared requirements would pull another torch, torchvision
+# and av (benchmarl) or pandas 1.4 (id-marl-eval); what they import is pinned in the lock beside them.
+NODEPS := ^(benchmarl|torchrl|tensordict|id-marl-eval)==
 
-.PHONY: setup bench test lint clean
+.PHONY: setup bench test lint clean browser
 
 # Pinned, reproducible install. torch is pinned on its own line: 2.13.0 is a local CPU wheel here,
 # and any other spec would pull gigabytes of CUDA packages.
@@ -12,11 +17,24 @@ $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q -r requirements.lock
+	grep -v -E '$(NODEPS)' requirements.lock > $(VENV)/requirements-deps.txt
+	$(BIN)/pip install -q -r $(VENV)/requirements-deps.txt
 	$(BIN)/pip install -q --no-deps -e .
 	touch $(STAMP)
 
 setup: $(STAMP)
+
+$(TESTED): $(STAMP)
+	grep -E '$(NODEPS)' requirements.lock > $(VENV)/requirements-nodeps.txt
+	$(BIN)/pip install -q --no-deps -r $(VENV)/requirements-nodeps.txt
+	touch $(TESTED)
+
+# Debian's chromium for tests/test_html.py, where apt is there and we are root; never fails the build
+# (without it those tests skip).
+browser:
+	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+		&& apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; } \
+		|| echo "chromium not installed: tests/test_html.py skips"
 
 bench: setup
 	$(BIN)/fixbench validate
@@ -25,7 +43,7 @@ bench: setup
 	$(BIN)/fixbench export results/default --format iohprofiler
 	$(BIN)/fixbench export results/default --format marl-eval
 
-test: setup
+test: $(TESTED) browser
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -n 2 --benchmark-disable
 

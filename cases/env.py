@@ -10,9 +10,21 @@ a team, docs/protocol.md), on the counted oracle:
   feasible pad tuples (``problem.options``); the joint answer is a layout, evaluated once on the
   oracle (one counted sample per step, ``env.samples``);
 - every agent receives the same reward: the seed paper's Gaussian reward by default, or the reference
-  code's bell reward (``reward="bell"``); ``infos[agent]`` carries ``max_u``, ``max_uxy``, ``max_w``,
-  ``max_ux``, ``max_uy``, both rewards, the task index, the global layout and the candidate indices
-  of the pads it placed (``pads``, -1 for none);
+  code's bell reward (``reward="bell"``);
+- ``infos[agent]`` holds the same numeric keys at ``reset`` and at every ``step`` (``INFO_KEYS``; the
+  libraries build their info spec from the reset infos, torchrl's ``PettingZooWrapper`` among them):
+  after a step, ``max_ux``, ``max_uy``, ``max_w``, ``max_u``, ``max_uxy`` (m) and ``reward_gaussian``,
+  ``reward_bell`` of the layout just evaluated, ``task`` (the task it was evaluated on), ``layout``
+  (its global action indices, one an agent) and ``pads`` (the candidate indices of the pads it placed,
+  -1 for none); at reset, before anything is evaluated, the measured keys hold -1.0 (no measured value
+  is negative), ``layout`` and ``pads`` hold -1 and ``task`` is the task the agents are asked about;
+- ``pad_actions=True`` gives every agent the action space of the largest set, ``Discrete(max)``, and
+  the observation ``{"observation": features, "action_mask": int8 vector}`` (PettingZoo's convention,
+  read by ``pettingzoo.test.parallel_api_test`` and torchrl's ``PettingZooWrapper``): 1 for the
+  agent's own actions ``0..len(set)-1``, 0 for the padding, which a step refuses like any index
+  outside the set. It lets libraries that stack agents into one group (one action size a group) run
+  on robots with sets of different sizes; the default keeps each agent's own ``Discrete(len(set))``
+  and the bare feature vector;
 - one episode is one pass over the tasks, in order or shuffled with the seed given to ``reset``;
   after the last task every agent is terminated and ``env.agents`` is empty.
 
@@ -35,10 +47,14 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from fixbench.cases.errors import CaseError
-from fixbench.cases.problem import Evaluator, Problem, load_problem
+from fixbench.cases.problem import Deformation, Evaluator, Problem, load_problem
 from fixbench.cases.spec import load_case_spec
 
 REWARDS = ("gaussian", "bell")
+# what a step measures, in infos; the env never asks for the soft max (``soft_u`` stays out: always NaN here)
+MEASURED = tuple(k for k in Deformation.__dataclass_fields__ if k != "soft_u")
+INFO_KEYS = (*MEASURED, "task", "layout", "pads")
+UNMEASURED = -1.0  # a measured key's value at reset
 
 
 class FixtureEnv(ParallelEnv):
@@ -46,14 +62,16 @@ class FixtureEnv(ParallelEnv):
 
     ``task_ids`` restricts an episode to those tasks of ``problem`` (indices into ``problem.tasks``;
     default all). ``evaluator`` lets a planner share its own counted evaluator with the env;
-    otherwise the env makes ``problem.evaluator(budget)``.
+    otherwise the env makes ``problem.evaluator(budget)``. ``pad_actions`` pads every action set to
+    the largest with an ``action_mask`` in the observation (see the module docstring).
     """
 
     metadata = {"name": "fixbench_fixture_v0", "render_modes": [], "is_parallelizable": True}
     render_mode = None  # nothing to render: `fixbench show` and `fixbench evaluate --plot` draw the part
 
     def __init__(self, problem: Problem, budget: int | None = None, reward: str = "gaussian",
-                 shuffle: bool = False, task_ids=None, evaluator: Evaluator | None = None):
+                 shuffle: bool = False, task_ids=None, evaluator: Evaluator | None = None,
+                 pad_actions: bool = False):
         if reward not in REWARDS:
             raise CaseError(problem.spec.source, "reward", f"must be one of {', '.join(REWARDS)}, got '{reward}'")
         self.problem = problem
@@ -71,8 +89,18 @@ class FixtureEnv(ParallelEnv):
         feats = problem.features.astype(np.float32)
         low, high = feats.min(axis=0), feats.max(axis=0)
         box = spaces.Box(low=low, high=high, shape=low.shape, dtype=np.float32)
-        self.observation_spaces = {a: box for a in self.possible_agents}
-        self.action_spaces = {a: spaces.Discrete(len(s)) for a, s in zip(self.possible_agents, problem.action_sets)}
+        sizes = [len(s) for s in problem.action_sets]
+        self.pad_actions = bool(pad_actions)
+        if self.pad_actions:
+            n = max(sizes)
+            self._masks = {a: (np.arange(n) < k).astype(np.int8) for a, k in zip(self.possible_agents, sizes)}
+            masked = spaces.Dict({"observation": box, "action_mask": spaces.Box(0, 1, shape=(n,), dtype=np.int8)})
+            self.observation_spaces = {a: masked for a in self.possible_agents}
+            self.action_spaces = {a: spaces.Discrete(n) for a in self.possible_agents}
+        else:
+            self.observation_spaces = {a: box for a in self.possible_agents}
+            self.action_spaces = {a: spaces.Discrete(k) for a, k in zip(self.possible_agents, sizes)}
+        self._n_pads = problem.pads(np.zeros((1, problem.n_agents), dtype=np.int64)).shape[1]
         self._feats = feats
         self._order = ids.copy()
         self._pos = 0
@@ -98,7 +126,13 @@ class FixtureEnv(ParallelEnv):
 
     def _obs(self) -> dict:
         o = self._feats[self.task]
+        if self.pad_actions:
+            return {a: {"observation": o.copy(), "action_mask": self._masks[a].copy()} for a in self.agents}
         return {a: o.copy() for a in self.agents}
+
+    def _infos(self, info: dict) -> dict:
+        """``info`` for every live agent, a dict of its own (a wrapper may pop keys from one)."""
+        return {a: dict(info) for a in self.agents}
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
@@ -108,7 +142,9 @@ class FixtureEnv(ParallelEnv):
         self._order = self.np_random.permutation(self.task_ids) if self.shuffle else self.task_ids.copy()
         self._pos = 0
         self.agents = list(self.possible_agents)
-        return self._obs(), {a: {"task": self.task} for a in self.agents}
+        info = {**dict.fromkeys(MEASURED, UNMEASURED), "task": self.task, "layout": [-1] * self.problem.n_agents,
+                "pads": [-1] * self._n_pads}
+        return self._obs(), self._infos(info)
 
     def layout(self, actions: dict) -> np.ndarray:
         """Global action indices of a joint answer (one action per agent).
@@ -141,23 +177,17 @@ class FixtureEnv(ParallelEnv):
         if not self.agents:
             raise CaseError(self.problem.spec.source, "step", "episode is over; call reset()")
         task, layout = self.task, self.layout(actions)
-        d = self.ev.evaluate(task, layout)
-        row = d.row(0)
-        # strict values: a number the step did not compute (soft_u) is None, not NaN (NaN != NaN)
-        info = {**{k: (v if np.isfinite(v) else None) for k, v in row.items()}, "task": task,
-                "layout": layout[0].tolist(), "pads": self.problem.pads(layout)[0].tolist()}
+        row = self.ev.evaluate(task, layout).row(0)
+        info = {**{k: row[k] for k in MEASURED}, "task": task, "layout": layout[0].tolist(),
+                "pads": self.problem.pads(layout)[0].tolist()}
         r = row[self.reward_key]
         self._pos += 1
         done = self._pos >= len(self._order)
-        agents = self.agents
-        obs = {a: self._feats[self.task].copy() for a in agents}
-        rewards = {a: r for a in agents}
-        terms = {a: done for a in agents}
-        truncs = {a: False for a in agents}
-        infos = {a: info for a in agents}
+        out = (self._obs(), {a: r for a in self.agents}, {a: done for a in self.agents},
+               {a: False for a in self.agents}, self._infos(info))
         if done:
             self.agents = []
-        return obs, rewards, terms, truncs, infos
+        return out
 
     def render(self):
         return None
@@ -168,18 +198,19 @@ class FixtureEnv(ParallelEnv):
 
 def make_env(case: str | Path | Problem, material: str | None = None, agents: int | None = None,
              tasks=None, budget: int | None = None, reward: str = "gaussian",
-             shuffle: bool = False) -> FixtureEnv:
+             shuffle: bool = False, pad_actions: bool = False) -> FixtureEnv:
     """A :class:`FixtureEnv` over a catalog case, a TOML path or a :class:`Problem`.
 
     With a case name or path, ``tasks`` (a list of task indices) builds a problem with only those
     tasks (same part, mesh and candidates; cheaper to set up), and the env's task indices refer to
     that problem. With a :class:`Problem`, ``material`` and ``agents`` must be left out and
     ``tasks`` selects the tasks of that problem an episode visits (its oracle is shared).
+    ``pad_actions`` pads the action sets to the largest with an action mask (:class:`FixtureEnv`).
     """
     if isinstance(case, Problem):
         if material is not None or agents is not None:
             raise CaseError(case.spec.source, "make_env", "material/agents apply to a case name, not a Problem")
-        return FixtureEnv(case, budget=budget, reward=reward, shuffle=shuffle, task_ids=tasks)
+        return FixtureEnv(case, budget=budget, reward=reward, shuffle=shuffle, task_ids=tasks, pad_actions=pad_actions)
     if tasks is None:
         problem = load_problem(case, material=material, agents=agents)
     else:
@@ -189,4 +220,4 @@ def make_env(case: str | Path | Problem, material: str | None = None, agents: in
             if not 0 <= t < len(spec.tasks):
                 raise CaseError(spec.source, "tasks", f"task {t} is not in 0..{len(spec.tasks) - 1}")
         problem = Problem(spec.with_tasks(idx))
-    return FixtureEnv(problem, budget=budget, reward=reward, shuffle=shuffle)
+    return FixtureEnv(problem, budget=budget, reward=reward, shuffle=shuffle, pad_actions=pad_actions)

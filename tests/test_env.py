@@ -1,4 +1,5 @@
-"""The PettingZoo fixture environment: API compliance on the four parts, sample counting, rewards."""
+"""The PettingZoo fixture environment: API compliance on the four parts (action sets as they are and
+padded with an action mask), the same info keys at reset and step, sample counting, rewards."""
 
 from __future__ import annotations
 
@@ -8,9 +9,11 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from fixbench.cases import make_env
+from fixbench.cases.env import INFO_KEYS, MEASURED, UNMEASURED
 from fixbench.cases.errors import BudgetExhausted, CaseError
 
 TASKS = [0, 1, 2]
+UNEQUAL = ["wing_panel_pairs_small", "wing_panel_small"]  # robots with action sets of different sizes
 
 
 @pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan", "wing_panel_pairs_small",
@@ -31,6 +34,64 @@ def test_parallel_seed_and_performance(part):
 
     parallel_seed_test(lambda: make_env(part, tasks=TASKS), num_cycles=20)
     performance_benchmark(parallel_to_aec(make_env(part, tasks=TASKS)))
+
+
+@pytest.mark.parametrize("part", UNEQUAL)
+def test_padded_action_sets_pass_the_api_and_seed_tests(part):
+    """``pad_actions=True``: one action size for all robots, PettingZoo's tests sample inside the mask."""
+    env = make_env(part, tasks=TASKS, pad_actions=True)
+    sizes = [len(s) for s in env.problem.action_sets]
+    assert len(set(sizes)) > 1
+    assert {env.action_space(a).n for a in env.possible_agents} == {max(sizes)}
+    obs, _ = env.reset(seed=0)
+    assert [int(obs[a]["action_mask"].sum()) for a in env.possible_agents] == sizes
+    assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+    parallel_api_test(env, num_cycles=20)
+    parallel_seed_test(lambda: make_env(part, tasks=TASKS, pad_actions=True), num_cycles=20)
+
+
+def test_a_padded_action_is_refused_and_costs_nothing():
+    env = make_env("wing_panel_pairs_small", tasks=TASKS, pad_actions=True)
+    obs, _ = env.reset(seed=0)
+    last = env.possible_agents[-1]
+    masked = int(np.flatnonzero(obs[last]["action_mask"] == 0)[0])
+    with pytest.raises(CaseError) as err:
+        env.step({a: (masked if a == last else 0) for a in env.agents})
+    assert "\n" not in str(err.value) and f"actions['{last}']" in str(err.value)
+    assert env.samples == 0
+
+
+def test_default_spaces_are_each_robots_own():
+    env = make_env("wing_panel_pairs_small", tasks=TASKS)
+    assert [env.action_space(a).n for a in env.possible_agents] == [len(s) for s in env.problem.action_sets]
+    obs, _ = env.reset(seed=0)
+    assert all(isinstance(o, np.ndarray) and env.observation_space(a).contains(o) for a, o in obs.items())
+
+
+@pytest.mark.parametrize("pad", [False, True])
+def test_reset_and_step_infos_carry_the_same_numeric_keys(pad):
+    env = make_env("wing_panel_pairs_small", tasks=TASKS, pad_actions=pad)
+    _, infos = env.reset(seed=0)
+    seen = [infos]
+    while env.agents:
+        seen.append(env.step({a: 0 for a in env.agents})[-1])
+    n_pads = len(seen[-1][env.possible_agents[0]]["pads"])  # 2 a robot: a fixture pair
+    assert n_pads == 2 * env.problem.n_agents
+    for step, infos in enumerate(seen):
+        assert set(infos) == set(env.possible_agents)
+        for info in infos.values():
+            assert tuple(info) == INFO_KEYS
+            values = [info[k] for k in MEASURED] + [info["task"], *info["layout"], *info["pads"]]
+            assert all(isinstance(v, (int, float)) and np.isfinite(v) for v in values)
+            assert len(info["layout"]) == env.problem.n_agents and len(info["pads"]) == n_pads
+            if step == 0:  # reset: nothing evaluated yet
+                assert all(info[m] == UNMEASURED for m in MEASURED) and set(info["layout"] + info["pads"]) == {-1}
+                assert info["task"] == TASKS[0]
+            else:
+                assert all(info[m] >= 0 for m in MEASURED) and min(info["layout"]) >= 0
+                assert info["task"] == TASKS[step - 1]
+    a, b = env.possible_agents[:2]
+    assert seen[1][a] is not seen[1][b]  # a dict each: a wrapper that pops a key from one leaves the others
 
 
 @pytest.mark.parametrize("bad", [-1, 3, 2.7, "1", None, True, np.array([1, 2]), 1.0])
