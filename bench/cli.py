@@ -535,6 +535,26 @@ def robots(case, tolerance_um, max_agents, material, fraction, max_evaluations, 
         click.echo(answer_text(a, tolerance_um))
 
 
+@cli.command()
+@click.argument("case")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG of the case (default: CASE.png).")
+@click.option("--json", "as_json", is_flag=True, help="Print strict JSON of every figure.")
+def check(case: str, material: str | None, out: Path | None, as_json: bool) -> None:
+    """Check CASE (a catalog name or your TOML) before trusting a run: mesh convergence, deflection over
+    thickness, reference cost, Gaussian reward widths, picture. Warnings on stderr; exit 0 (docs/check.md)."""
+    from fixbench.bench.check import check_case, text
+
+    res = check_case(case, material, out)
+    if as_json:
+        echo_json(res)
+    else:
+        for line in text(res):
+            click.echo(line)
+    for w in res["warnings"]:
+        click.echo(f"warning: {w}", err=True)
+
+
 @cli.group()
 def references() -> None:
     """Regret references of the full parts: build them, merge better layouts from a run."""
