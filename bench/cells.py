@@ -7,14 +7,18 @@ model and oracle once.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.metadata
+import io
 import json
 import math
 import os
 import re
+import sys
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -55,26 +59,49 @@ def reference_key(case: str, material: str | None, agents: int | None, tasks: in
     return f"{name}__{material or 'default'}__a{agents or 'default'}__t{tasks or 'all'}"
 
 
-def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
-                      modes: tuple[str, ...]) -> dict:
-    """The regret reference of a problem: the ``exact`` planner's optimum (proven, or best known with
-    its MILP gap); where ``exact`` refuses (too large), the shipped catalog reference of the case
-    (:mod:`fixbench.cases.references`: the portfolio's best-known layouts), restricted to the problem's tasks.
-    ``source`` says which was used; ``case_fingerprint`` which case file, material and agent count it
-    was computed on (merged reports compare it: :mod:`fixbench.bench.merge`)."""
+def reference_head(case: str, material: str | None, agents: int | None, tasks: int | None, p: Problem) -> dict:
+    """The fields every regret reference of the problem starts with (the problem ``p`` resolves the
+    material and agents), before its numbers are in."""
     from fixbench.cases.references import case_fingerprint
+
+    return {"key": reference_key(case, material, agents, tasks), "case": case, "material": p.spec.material.name,
+            "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "", "per_task": None, "shared": None,
+            "proven": False, "gap": None, "samples": 0, "source": "",
+            "case_fingerprint": case_fingerprint(case, p.spec.material.name, p.n_agents)}
+
+
+def enumerates(p: Problem, proof_limit: int | None) -> bool:
+    """Whether the proof phase enumerates every layout of each position of ``p``, position by position:
+    at most ``proof_limit`` (the matrix's; None: no cap of its own) and ``exact``'s ``max_enumeration``
+    layouts a position."""
+    from fixbench.solvers.registry import get
+
+    cap = get("exact").Config().max_enumeration
+    return p.joint_size <= (cap if proof_limit is None else min(cap, proof_limit))
+
+
+def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
+                      modes: tuple[str, ...], proof_limit: int | None = None) -> dict:
+    """The regret reference of a problem in one job (the proof phase enumerates a problem position by
+    position instead where it can: :func:`prove_position`, :mod:`fixbench.bench.proof`): the ``exact``
+    planner's optimum (its MILP: proven, or best known with its gap); where ``exact`` refuses (too
+    large), or the problem has more than ``proof_limit`` layouts a position (the matrix's cap), the
+    shipped catalog reference of the case (:mod:`fixbench.cases.references`: the portfolio's best-known
+    layouts), restricted to the problem's tasks. ``source`` says which was used; ``case_fingerprint``
+    which case file, material and agent count it was computed on (merged reports compare it:
+    :mod:`fixbench.bench.merge`)."""
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
     p = problem_for(case, material, agents, tasks)
-    ref = {"key": reference_key(case, material, agents, tasks), "case": case, "material":
-           p.spec.material.name, "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "",
-           "per_task": None, "shared": None, "proven": False, "gap": None, "samples": 0, "source": "",
-           "case_fingerprint": case_fingerprint(case, p.spec.material.name, p.n_agents)}
+    ref = reference_head(case, material, agents, tasks, p)
     t0 = time.perf_counter()
     try:
         exact = get("exact")()
         try:
+            if proof_limit is not None and p.joint_size > proof_limit:
+                raise PlannerError(f"{p.joint_size:.3g} layouts a position, over the matrix's proof_limit "
+                                   f"({proof_limit:.3g})")
             res = exact.solve(p, None, seed=0, mode="per-task")
         except PlannerError as refused:
             shipped = shipped_reference(case, p.spec.material.name, p.n_agents, tasks)
@@ -94,6 +121,63 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
         ref["error"] = f"{type(exc).__name__}: {exc}"
     ref["wall_s"] = time.perf_counter() - t0
     return ref
+
+
+@dataclass(frozen=True)
+class Position:
+    """One position (task) of a problem whose optimum the proof phase proves by enumeration; ``task``
+    None: the shared optimum (one layout for every position, judged by the worst)."""
+
+    case: str
+    material: str | None
+    agents: int | None
+    tasks: int | None
+    task: int | None
+
+    @property
+    def problem_key(self) -> tuple:
+        return (self.case, self.material, self.agents, self.tasks)
+
+
+def prove_position(pos: Position) -> dict:
+    """The proven optimum of one position: ``exact``'s enumeration on a counted evaluator open on that
+    position alone (the layout of least max deformation, first in enumeration order on a tie), measured
+    as :meth:`~fixbench.solvers.base.Planner.solve` scores it; with ``task`` None the shared optimum.
+    Returns the proof record (:mod:`fixbench.bench.proof`), or ``{"position", "error"}``; never raises.
+    ``exact``'s own progress bar is kept off the terminal: the driver shows the phase's."""
+    from fixbench.solvers.base import TracedEvaluator
+    from fixbench.solvers.registry import get
+
+    t0 = time.perf_counter()
+    try:
+        p = problem_for(*pos.problem_key)
+        exact = get("exact")()
+        with _quiet_stderr():
+            if pos.task is None:
+                res = exact.solve(p, None, seed=0, mode="shared")
+                return {"position": "shared", "objective_m": float(res.objective),
+                        "layout": res.layouts[0].tolist(), "proven": bool(res.info.get("proven", False)),
+                        "samples": int(res.samples), "wall_s": time.perf_counter() - t0}
+            ev = TracedEvaluator(p, None, [pos.task])
+            exact.plan(p, ev, np.random.default_rng(0), "per-task")
+        layout = ev.best_layout[pos.task]
+        u = p.deformation(p.measure(pos.task, layout[None])).max_u[0]
+    except Exception as exc:  # a failing position is recorded by the driver, never a crash of the matrix
+        return {"position": "shared" if pos.task is None else pos.task, "error": f"{type(exc).__name__}: {exc}"}
+    return {"position": pos.task, "layout": layout.tolist(), "max_deformation_m": float(u),
+            "samples": int(ev.samples), "wall_s": time.perf_counter() - t0}
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Run with ``sys.stderr`` captured (a progress bar that asks for a terminal stays off), then pass
+    on whatever was written there (a warning)."""
+    buffer = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(buffer):
+            yield
+    finally:
+        sys.stderr.write(buffer.getvalue())
 
 
 def shipped_reference(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
@@ -234,9 +318,11 @@ def _curves(info: dict) -> dict | None:
 
 
 def execute(job: tuple) -> dict:
-    """Entry point of every executor: ("reference", args) or ("cell", (cell, reference))."""
+    """Entry point of every executor: ("reference", args), ("position", (position,)) or ("cell", (cell, reference))."""
     kind, payload = job
     if kind == "reference":
         return {"reference": compute_reference(*payload)}
+    if kind == "position":
+        return prove_position(payload[0])
     cell, reference = payload
     return run_cell(cell, reference)

@@ -88,8 +88,9 @@ def _pads_text(eff) -> str:
 @click.option("--material", help="Material name (default: the case's).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="PNG file to write.")
 def show(case: str, material: str | None, out: Path | None) -> None:
-    """Picture of CASE: part, mesh, candidates coloured by agent, supports, tasks; and whether its
-    Gaussian reward widths give random layouts a reward other than 0 or 1 (a warning if not)."""
+    """Picture of CASE: part, mesh, candidates coloured by robot (named by their regions where the case
+    names them), supports, tasks; and whether its Gaussian reward widths give random layouts a reward
+    other than 0 or 1 (a warning if not)."""
     from fixbench.bench.plots import show_case
 
     problem = _problem(case, material)
@@ -243,7 +244,8 @@ def perf(case: str, batch: int, as_json: bool) -> None:
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
 def solvers(as_json: bool) -> None:
-    """List the registered planners (built-ins and plugins) with one-line descriptions."""
+    """List the registered planners (built-ins and plugins): name, family (the kind of method) and a
+    one-line description; --json adds their modes and modules."""
     from fixbench.solvers.registry import listing
 
     rows = listing()
@@ -251,7 +253,7 @@ def solvers(as_json: bool) -> None:
         echo_json(rows)
     else:
         for r in rows:
-            click.echo(f"{r['planner']:>10}  {r['description']}")
+            click.echo(f"{r['planner']:>12}  {r['family']:<21}  {r['description']}")
 
 
 @cli.command()

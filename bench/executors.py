@@ -17,7 +17,7 @@ import psutil
 
 from fixbench.bench.cells import execute
 
-Job = tuple  # ("reference", args) | ("cell", (cell, reference))
+Job = tuple  # ("reference", args) | ("position", (position,)) | ("cell", (cell, reference))
 #: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 OnResult = Callable[[Job, dict | None, str], None]  # (job, result or None, error text)

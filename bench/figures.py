@@ -321,10 +321,10 @@ def _problem_for_row(row):
     return p
 
 
-def field_figure(ok: pd.DataFrame, case: str, refs: dict):
-    """The part's |u| under each planner's best layout (and the optimum), one material and task. Each
-    panel has its own colour scale and bar: one scale set by the worst layout would flatten the good
-    ones into one colour."""
+def field_figure(ok: pd.DataFrame, case: str, refs: dict, name: str | None = None):
+    """The part's |u| under each planner's best layout (and the optimum), one material and task, titled
+    with ``name`` (default: ``case``, as the rows hold it). Each panel has its own colour scale and bar:
+    one scale set by the worst layout would flatten the good ones into one colour."""
     d = ok[(ok["case"] == case) & ok["layouts"].notna()]
     mat = sorted(d["material"].unique())[0]
     d = d[d["material"] == mat]
@@ -367,5 +367,5 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict):
         cbar.ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
-    fig.suptitle(f"{case}, {mat}, task {task}: fixtures in red", fontsize=10)
+    fig.suptitle(f"{name or case}, {mat}, task {task}: fixtures in red", fontsize=10)
     return fig, mat, task

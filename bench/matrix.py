@@ -23,7 +23,7 @@ from fixbench.cases.spec import resolve_case
 from fixbench.cases.units import Reader
 
 KEYS = ("name", "cases", "materials", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
-        "tasks", "heldout_every", "description")
+        "tasks", "heldout_every", "proof_limit", "description")
 MODES = ("per-task", "shared", "held-out")
 
 
@@ -94,6 +94,8 @@ class Matrix:
     tasks: int | None
     samples_per_task: tuple[int, ...] = ()
     heldout_every: int | None = None
+    #: most layouts a position whose optimum the reference phase proves (None: ``exact``'s own limit)
+    proof_limit: int | None = None
 
     def cells(self) -> list[Cell]:
         """Every cell, in a fixed order (case, material, agents, mode, budget, planner, seed).
@@ -234,6 +236,7 @@ def load_matrix(path: str | Path) -> Matrix:
             if tasks > n:
                 raise r.error("tasks", f"{tasks} tasks asked, but case '{c}' has only {n}")
     heldout_every = r.integer("heldout_every", None, minimum=2)
+    proof_limit = r.integer("proof_limit", None, minimum=0)
     if ("held-out" in modes) != (heldout_every is not None):
         raise r.error("heldout_every", "is needed by mode \"held-out\" (train on every k-th task) and only then")
     planners = []
@@ -285,7 +288,7 @@ def load_matrix(path: str | Path) -> Matrix:
         raise r.error("planners", "two entries are the same planner and config: give them different labels")
     r.used.update(data)
     return Matrix(name, source, tuple(cases), tuple(materials), tuple(planners), tuple(seeds),
-                  tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every)
+                  tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every, proof_limit)
 
 
 def _as_text(v) -> str:

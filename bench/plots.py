@@ -23,17 +23,26 @@ def outline(ax, problem: Problem, lw: float = 1.2) -> None:
         ax.plot(x, y, color="black", lw=lw)
 
 
-def show_case(problem: Problem, out: Path) -> Path:
-    """Part, mesh, fixture candidates coloured by agent, supports and task load points."""
+def candidate_groups(problem: Problem) -> list[tuple[str, np.ndarray]]:
+    """The fixture candidates of each robot with its legend label: the robot's region name where the
+    case names its regions (``[[agents.regions]]``), else ``robot i``, and its candidate count."""
+    regions = [name for name, _ in problem.spec.agent_regions]
+    return [(f"{regions[a] if regions else f'robot {a}'}: {len(idx)} candidates", idx)
+            for a, idx in enumerate(problem.candidate_sets)]
+
+
+def case_figure(problem: Problem):
+    """Part, mesh, fixture candidates coloured by robot, supports and task load points; the legend,
+    beside the part (it hides no candidate), lists each robot's candidates (:func:`candidate_groups`)."""
     model = problem.model
-    fig, ax = plt.subplots(figsize=(7, 7))
+    fig, ax = plt.subplots(figsize=(9.5, 7))
     p = model.mesh.p * 1e3
     ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
     outline(ax, problem)
     colors = plt.get_cmap("tab10")
-    for a, idx in enumerate(problem.candidate_sets):
+    for a, (label, idx) in enumerate(candidate_groups(problem)):
         c = problem.candidates[idx] * 1e3
-        ax.scatter(c[:, 0], c[:, 1], s=4, color=colors(a % 10), label=f"agent {a} ({len(idx)})")
+        ax.scatter(c[:, 0], c[:, 1], s=4, color=colors(a % 10), label=label)
     sup_pts = []
     for name in model.active:
         fs = model.fields[name]
@@ -53,8 +62,13 @@ def show_case(problem: Problem, out: Path) -> Path:
                  + (f" ({problem.spec.candidates_dropped} grid points off the part dropped)"
                     if problem.spec.candidates_dropped else "")
                  + f", {problem.n_tasks} tasks", fontsize=9)
-    ax.legend(fontsize=7, loc="best", markerscale=2)
-    return save_png(fig, out)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, markerscale=2)
+    return fig
+
+
+def show_case(problem: Problem, out: Path) -> Path:
+    """:func:`case_figure` as a PNG at ``out``."""
+    return save_png(case_figure(problem), out)
 
 
 def field_plot(problem: Problem, task: int, layout, out: Path) -> Path:

@@ -94,6 +94,26 @@ def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_") or "case"
 
 
+def case_names(cases) -> dict[str, str]:
+    """How the report names each case of the rows (as they hold it: a catalog name or a case file's
+    path): a catalog case by its name, a case file by the name it gives itself (``[case] name``; the
+    file's stem when the file cannot be read here); case files that give one name keep their file names
+    beside it."""
+    from fixbench.cases.errors import CaseError
+    from fixbench.cases.spec import case_names as catalog
+    from fixbench.cases.spec import load_case_spec
+
+    known = set(catalog())
+    named = {}
+    for case in dict.fromkeys(map(str, cases)):
+        try:
+            named[case] = case if case in known else load_case_spec(case).name
+        except CaseError:
+            named[case] = Path(case).stem
+    twice = {n for n in named.values() if list(named.values()).count(n) > 1}
+    return {c: f"{n} ({Path(c).name})" if n in twice and c not in known else n for c, n in named.items()}
+
+
 def check_scored_references(run_dir: Path, rows: pd.DataFrame, refs: dict) -> None:
     """Refuse (one line) a run whose rows or reference snapshots were scored against a shipped
     reference other than the one shipped now (:func:`fixbench.cases.references.check_sources`)."""
@@ -243,7 +263,9 @@ def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | No
     runs = load_runs([run_dir] if isinstance(run_dir, (str, Path)) else list(run_dir))
     for path, (each_rows, each_refs) in zip(runs.paths, runs.each):
         check_scored_references(path, each_rows, each_refs)
-    rows, refs = runs.rows, runs.refs
+    named = case_names(runs.rows["case"])  # tables and figures name a case file's case by its name
+    rows = runs.rows.assign(case=runs.rows["case"].map(named))
+    refs = {(named.get(k[0], k[0]), *k[1:]): v for k, v in runs.refs.items()}
     out = Path(out) if out is not None else runs.paths[0] / "report"
     w = _Writer(out)
     if rows.attrs.get("damaged"):
@@ -394,9 +416,10 @@ def _figure_sections(w: _Writer, runs: Runs, rows: pd.DataFrame, refs: dict, col
     elif ok.empty or "layouts" not in ok or ok["layouts"].isna().all():
         w.skip("Deformation fields", "no successful cell stores its layouts")
     else:
+        as_run = dict(zip(rows["case"], runs.rows["case"]))  # the case as the rows hold it, to rebuild it
         for case in ok_cases:
             try:
-                fig, mat, task = field_figure(ok, case, refs)
+                fig, mat, task = field_figure(runs.rows[runs.rows["ok"]], as_run[case], runs.refs, name=case)
             except Exception as exc:  # a case that cannot be rebuilt here must not stop the report
                 w.skip(f"Deformation field of {case}", f"{type(exc).__name__}: {exc}")
                 continue

@@ -2,8 +2,10 @@
 
 Crash-safe and resumable: every finished cell's row is written atomically as it arrives, and a
 rerun of the same command skips the cells that have a row (``--retry-failed`` reruns the ones
-whose row carries an error). A planner that raises or runs past ``--cell-timeout`` becomes a row
-with its error; the matrix goes on.
+whose row carries an error). The reference phase before the cells proves each problem's optimum
+position by position where it can (:mod:`fixbench.bench.proof`), with its progress on stderr and
+every proven position kept in the run directory: a rerun proves only the positions missing. A
+planner that raises or runs past ``--cell-timeout`` becomes a row with its error; the matrix goes on.
 """
 
 from __future__ import annotations
@@ -18,9 +20,10 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from fixbench.bench.cells import base_row, reference_key
+from fixbench.bench.cells import base_row, enumerates, problem_for, reference_key
 from fixbench.bench.matrix import find_matrix, load_matrix
-from fixbench.bench.store import Store
+from fixbench.bench.proof import Proof
+from fixbench.bench.store import Store, write_json_atomic
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_text_atomic
@@ -71,7 +74,7 @@ def run_matrix(matrix_path: str | Path, out: str | Path, executor: str = "local"
         return {"cells": len(cells), "skipped": 0, "run": 0, "failed": 0, "deferred": len(cells)}
     opts = _RunOptions(executor, workers, address, cell_timeout, retry_failed, progress, bool(only), plain_every)
     with store.lock():
-        return _run_locked(text, store, cells, selected, opts)
+        return _run_locked(text, store, cells, selected, opts, matrix.proof_limit)
 
 
 @dataclass(frozen=True)
@@ -108,8 +111,8 @@ def _check_extends(root: Path, saved: Path, cells: list) -> None:
                             "another --out")
 
 
-def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOptions) -> dict:
-    """The run itself, with the run directory's lock held."""
+def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOptions, proof_limit: int | None) -> dict:
+    """The run itself, with the run directory's lock held: the reference phase, then the cells."""
     saved = store.root / "matrix.toml"
     extends = False
     if saved.exists() and saved.read_text(encoding="utf-8") != text:
@@ -133,57 +136,95 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
         write_text_atomic(saved, text)  # an extended run's matrix is the new one, a superset of the old
 
     modes = tuple(sorted({c.mode for c in cells}))
+    ex = make_executor(opts.executor, opts.workers, opts.cell_timeout, opts.address, env=worker_env(store.root))
+    try:
+        references = _reference_phase(store, todo, modes, proof_limit, ex, opts)
+        bar = tqdm(total=len(todo), disable=not opts.progress, unit="cell", desc="cells")
+        plain = _PlainProgress(opts.plain_every if not opts.progress else 0.0)
+
+        def on_cell(job, result, error):
+            cell = job[1][0]
+            if result is None:
+                row = base_row(cell)
+                row["error"] = error
+                result = {"row": row, "trace": None, "curves": None}
+            row = result["row"]
+            store.write(row, _frame(result["trace"]), _frame(result["curves"]))
+            summary["run"] += 1
+            summary["failed"] += bool(row["error"])
+            bar.set_postfix(failed=summary["failed"])
+            bar.update()
+            if summary["run"] < len(todo):  # (the command prints its own summary at the end)
+                plain.tick(f"{summary['run']}/{len(todo)} cells done, {summary['failed']} failed",
+                           summary["run"] / len(todo))
+
+        jobs = [("cell", (c, references.get(reference_key(*c.problem_key)))) for c in todo]
+        try:
+            ex.run(jobs, on_cell)  # the same workers: their last problem's model is still built
+        finally:
+            bar.close()
+    except KeyboardInterrupt as exc:  # Ctrl-C: the finished rows and proven positions are on disk
+        exc.summary = summary
+        raise
+    finally:
+        ex.close()
+    return summary
+
+
+def _reference_phase(store: Store, todo: list, modes: tuple[str, ...], proof_limit: int | None, ex,
+                     opts: _RunOptions) -> dict[str, dict]:
+    """The regret reference of every problem of ``todo``: read where ``DIR/reference/KEY.json`` holds
+    it; proven position by position where the positions can be enumerated (:mod:`fixbench.bench.proof`:
+    progress on stderr, records in the run directory, a rerun proves only the positions missing); else
+    one job a problem (``exact``'s MILP or the shipped reference). Returns {key: reference}."""
     references: dict[str, dict] = {}
-    ref_jobs = []
+    proofs: dict[str, Proof] = {}
+    ref_jobs, whole = [], {}
     for key4 in dict.fromkeys(c.problem_key for c in todo):
         key = reference_key(*key4)
         path = store.reference_path(key)
         if path.exists():
             references[key] = json.loads(path.read_text())
+        elif enumerates(problem_for(*key4), proof_limit):
+            proofs[key] = Proof(store.root, key4, "shared" in modes)
         else:
-            ref_jobs.append(("reference", (*key4, modes)))
-    ex = make_executor(opts.executor, opts.workers, opts.cell_timeout, opts.address, env=worker_env(store.root))
-    bar = tqdm(total=len(ref_jobs) + len(todo), disable=not opts.progress, unit="job", desc="references")
-    plain = _PlainProgress(len(todo), opts.plain_every if not opts.progress else 0.0)
+            ref_jobs.append(("reference", (*key4, modes, proof_limit)))
+            whole[key] = problem_for(*key4).n_tasks
+
+    def keep(key: str, ref: dict) -> None:
+        references[key] = ref
+        write_json_atomic(store.reference_path(key), ref)
+
+    progress = _ProofProgress(list(proofs.values()), sum(whole.values()), opts)
+    left = {key: len(proof.missing()) for key, proof in proofs.items()}
 
     def on_reference(job, result, error):
-        case, material, agents, tasks, _ = job[1]
-        key = reference_key(case, material, agents, tasks)
-        ref = result["reference"] if result else {"key": key, "error": error, "per_task": None}
-        references[key] = ref
-        from fixbench.bench.store import write_json_atomic
+        key = reference_key(*job[1][:4])
+        keep(key, result["reference"] if result else {"key": key, "error": error, "per_task": None})
+        progress.advance(whole[key], 0)
 
-        write_json_atomic(store.reference_path(key), ref)
-        bar.update()
+    def on_position(job, result, error):
+        pos = job[1][0]
+        key = reference_key(*pos.problem_key)
+        position = "shared" if pos.task is None else pos.task
+        proofs[key].add(result or {"position": position, "error": error})
+        progress.advance(int(position != "shared"), proofs[key].layouts_of(position))
+        left[key] -= 1
+        if not left[key]:
+            keep(key, proofs[key].reference())
 
-    def on_cell(job, result, error):
-        cell = job[1][0]
-        if result is None:
-            row = base_row(cell)
-            row["error"] = error
-            result = {"row": row, "trace": None, "curves": None}
-        row = result["row"]
-        store.write(row, _frame(result["trace"]), _frame(result["curves"]))
-        summary["run"] += 1
-        summary["failed"] += bool(row["error"])
-        bar.set_postfix(failed=summary["failed"])
-        bar.update()
-        plain.tick(summary["run"], summary["failed"])
-
+    for key, proof in proofs.items():
+        if not left[key]:  # every position was proven before the run stopped: assemble it now
+            keep(key, proof.reference())
     try:
+        positions = [("position", (pos,)) for proof in proofs.values() for pos in proof.missing()]
+        if positions:
+            ex.run(positions, on_position)
         if ref_jobs:
             ex.run(ref_jobs, on_reference)
-        bar.set_description("cells")
-        jobs = [("cell", (c, references.get(reference_key(*c.problem_key)))) for c in todo]
-        ex.run(jobs, on_cell)  # the same workers: their last problem's model is still built
-    except KeyboardInterrupt as exc:  # Ctrl-C: the finished rows are on disk; say how to go on
-        bar.close()
-        exc.summary = summary
-        raise
     finally:
-        ex.close()
-    bar.close()
-    return summary
+        progress.close()
+    return references
 
 
 def check_shipped_references(cells) -> None:
@@ -205,19 +246,52 @@ def check_shipped_references(cells) -> None:
 class _PlainProgress:
     """A progress line on stderr at most every ``every`` seconds (0: never)."""
 
-    def __init__(self, total: int, every: float):
-        self.total, self.every = total, every
+    def __init__(self, every: float):
+        self.every = every
         self.start = self.last = time.monotonic()
 
-    def tick(self, done: int, failed: int) -> None:
+    def tick(self, what: str, fraction: float) -> None:
+        """``what`` is done, ``fraction`` of the work this progress counts (the ETA is read from it)."""
         now = time.monotonic()
-        if self.every <= 0 or now - self.last < self.every or done >= self.total:
-            return  # (the command prints its own summary at the end)
+        if self.every <= 0 or now - self.last < self.every:
+            return
         self.last = now
         elapsed = now - self.start
-        eta = elapsed / done * (self.total - done) if done else float("nan")
-        print(f"fixbench run: {done}/{self.total} cells done, {failed} failed, {_hms(elapsed)} elapsed, "
-              f"ETA {_hms(eta)}", file=sys.stderr, flush=True)
+        eta = elapsed / fraction * (1 - fraction) if fraction > 0 else float("nan")
+        print(f"fixbench run: {what}, {_hms(elapsed)} elapsed, ETA {_hms(eta)}", file=sys.stderr, flush=True)
+
+
+class _ProofProgress:
+    """The reference phase on stderr: a bar of the layouts the proof enumerates (its rate and ETA),
+    with the positions whose reference is in as its postfix; without a terminal, plain lines
+    (:class:`_PlainProgress`). Positions proven before a resumed run count as done from the start."""
+
+    def __init__(self, proofs: list, whole_positions: int, opts: _RunOptions):
+        todo = [(proof, pos.task if pos.task is not None else "shared") for proof in proofs for pos in proof.missing()]
+        self.layouts = sum(proof.layouts_of(w) for proof, w in todo)
+        self.positions = sum(proof.n_tasks for proof in proofs) + whole_positions
+        self.proven = sum(proof.n_tasks for proof in proofs) - sum(w != "shared" for _, w in todo)
+        self.enumerated = 0
+        self.bar = tqdm(total=self.layouts, disable=not opts.progress or not self.positions, unit="layout",
+                        unit_scale=True, desc="proof", dynamic_ncols=True)
+        self.bar.set_postfix_str(self._positions(), refresh=bool(self.positions))
+        self.plain = _PlainProgress(opts.plain_every if not opts.progress else 0.0)
+
+    def _positions(self) -> str:
+        return f"{self.proven}/{self.positions} positions"
+
+    def advance(self, positions: int, layouts: int) -> None:
+        self.proven += positions
+        self.enumerated += layouts
+        self.bar.set_postfix_str(self._positions(), refresh=False)
+        self.bar.update(layouts)
+        if self.proven < self.positions:  # the cells' progress follows the last one
+            self.plain.tick(f"proof {self._positions()} ({tqdm.format_sizeof(self.enumerated)} of "
+                            f"{tqdm.format_sizeof(self.layouts)} layouts)",
+                            self.enumerated / self.layouts if self.layouts else self.proven / self.positions)
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def _hms(s: float) -> str:

@@ -279,6 +279,9 @@ class Planner(ABC):
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: the kind of method, as the README groups the planners: marl, bandit, evolutionary, local-search,
+    #: case-based, qp, bayesian-optimisation, rules, random, exact (a plugin may name its own)
+    family: ClassVar[str] = "other"
     Config: ClassVar[type[PlannerConfig]] = PlannerConfig
     modes: ClassVar[tuple[str, ...]] = MODES
     #: True for a learner whose returned layouts are its greedy policy's (not its incumbents): the

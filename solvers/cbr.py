@@ -330,6 +330,7 @@ def adapt(problem: Problem, entry: dict, normalised: bool) -> np.ndarray:
 @register
 class CaseBasedReasoning(Planner):
     name = "cbr"
+    family = "case-based"
     description = "case-based reasoning: nearest solved cases from a library, adapted, revised by local search"
     Config = CBRConfig
 

@@ -91,6 +91,7 @@ class _EvolutionaryPlanner(Planner):
     """One pymoo run on each share of the budget (:meth:`~fixbench.solvers.base.Planner.drive`): per
     task, or one on the worst task (shared)."""
 
+    family = "evolutionary"
     #: the layouts as this algorithm's variables (:mod:`fixbench.solvers.pymoo_problem`)
     encoding: ClassVar[Callable[[Problem], Encoding]]
 

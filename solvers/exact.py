@@ -99,6 +99,7 @@ class ExactConfig(PlannerConfig):
 @register
 class Exact(Planner):
     name = "exact"
+    family = "exact"
     description = "proven optimum: exhaustive enumeration, or a HiGHS MILP with its proven gap"
     Config = ExactConfig
 

@@ -398,6 +398,7 @@ class LocalGP:
 @register
 class GPUCB(Planner):
     name = "gp-ucb"
+    family = "bandit"
     description = "Contextual GP bandit (CGP-UCB, batched by GP-BUCB) on local exact GPs of log-deformation"
     Config = GPUCBConfig
     modes = ("per-task",)

@@ -92,6 +92,7 @@ class GreedyConfig(PlannerConfig):
 @register
 class Greedy(Planner):
     name = "greedy"
+    family = "local-search"
     description = "person-by-person best response from random starts (a team-theory local optimum)"
     Config = GreedyConfig
 

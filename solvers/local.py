@@ -98,6 +98,7 @@ class LocalConfig(PlannerConfig):
 @register
 class LocalSearch(Planner):
     name = "local"
+    family = "local-search"
     description = "widening local search in the plane with kicks; warm-starts from solved tasks (transfer)"
     Config = LocalConfig
 

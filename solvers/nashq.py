@@ -190,6 +190,7 @@ def train_ids(problem: Problem, cfg: NashQConfig) -> np.ndarray:
 # the planner
 # ---------------------------------------------------------------------------------------------
 class _QPlanner(Planner):
+    family = "marl"
     Config = NashQConfig
     modes = ("per-task",)
     joint = True

@@ -92,6 +92,7 @@ class OptunaConfig(PlannerConfig):
 @register
 class OptunaTPE(Planner):
     name = "optuna"
+    family = "bayesian-optimisation"
     description = "Optuna's TPE sampler, one categorical parameter per agent (index into its set)"
     Config = OptunaConfig
 

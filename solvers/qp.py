@@ -161,6 +161,7 @@ class QPConfig(PlannerConfig):
 @register
 class QPPlanner(Planner):
     name = "qp"
+    family = "qp"
     description = "group-sparse QP relaxation of the pad forces (cvxpy + OSQP), rounded and polished"
     Config = QPConfig
 

@@ -27,6 +27,7 @@ class RandomConfig(PlannerConfig):
 @register
 class RandomSearch(Planner):
     name = "random"
+    family = "random"
     description = "uniform random layouts; the floor every method must beat"
     Config = RandomConfig
 

@@ -151,22 +151,26 @@ def _lookup(classes: dict, cls: str, attr: str, default):
 
 
 def listing() -> list[dict]:
-    """Every planner: name, description, modes and module, sorted by name. Built-ins are described
+    """Every planner: name, description, family, modes and module, sorted by name. Built-ins are described
     from their source without importing them (a test checks this equals the imported classes);
     plugins and registered planners from their classes (a name clash raises, as in :func:`get`)."""
-    rows = {n: {"planner": n, "description": c.description, "modes": list(c.modes), "module": c.__module__}
-            for n, c in _REGISTRY.items()}
+    rows = {n: _row(n, c) for n, c in _REGISTRY.items()}
     for ep in _entry_points().values():
         _import(ep.name)
-        c = _REGISTRY[ep.name]
-        rows[ep.name] = {"planner": ep.name, "description": c.description, "modes": list(c.modes),
-                         "module": c.__module__}
+        rows[ep.name] = _row(ep.name, _REGISTRY[ep.name])
     for module in dict.fromkeys(BUILTIN.values()):
         classes = _class_attrs(module)
         for cls in classes:
             name = _lookup(classes, cls, "name", "")
             if BUILTIN.get(name) == module and name not in rows:
                 rows[name] = {"planner": name, "description": _lookup(classes, cls, "description", ""),
+                              "family": _lookup(classes, cls, "family", Planner.family),
                               "modes": list(_lookup(classes, cls, "modes", Planner.modes)), "module": module}
     return [rows[n] for n in sorted(rows)]
+
+
+def _row(name: str, cls: type[Planner]) -> dict:
+    """What :func:`listing` says of an imported planner class."""
+    return {"planner": name, "description": cls.description, "family": cls.family, "modes": list(cls.modes),
+            "module": cls.__module__}
 

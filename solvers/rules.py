@@ -139,6 +139,7 @@ def support_distance(spec: CaseSpec) -> np.ndarray:
 @register
 class Rules(Planner):
     name = "rules"
+    family = "rules"
     description = "fixturing rules by hand: a pad at the load, the others spread over free regions (zero samples)"
     Config = RulesConfig
 

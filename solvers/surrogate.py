@@ -264,6 +264,7 @@ def move_repeats(layouts: np.ndarray, done: set, batch: set, sets: list[np.ndarr
 @register
 class SurrogateTS(Planner):
     name = "surrogate-ts"
+    family = "bandit"
     description = "Thompson sampling on a bootstrapped MLP ensemble of log-deformation shared by all tasks"
     Config = SurrogateConfig
     modes = ("per-task",)

@@ -222,6 +222,7 @@ def q_tot(q: SharedQ, acts: Actions, feats: torch.Tensor, tasks: torch.Tensor, a
 @register
 class VDN(Planner):
     name = "vdn"
+    family = "marl"
     description = "value-decomposition networks (VDN): summed per-agent Q, one network shared over pad coordinates"
     Config = VDNConfig
     modes = ("per-task",)
