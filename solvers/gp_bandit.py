@@ -1,6 +1,8 @@
 """Contextual Gaussian-process bandit on local exact GPs: lower confidence bound (``gp-ucb``).
 
-Read top to bottom (cleanrl style): hyper-parameters, the local GP, its best response, the loop.
+Read top to bottom (cleanrl style): hyper-parameters, the local GP, its best response, the run (fit,
+propose, act on held-out tasks). The rounds loop itself (data, round 0, batch size, warm starts,
+repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandit`'s, shared with ``surrogate-ts``.
 
 References: Srinivas, Krause, Kakade and Seeger, ICML 2010, "Gaussian Process Optimization in the
 Bandit Setting" (GP-UCB); Krause and Ong, NeurIPS 2011, "Contextual Gaussian Process Bandit
@@ -57,20 +59,16 @@ alternatives); only when the pool is used up are the rest random neighbours of t
 agent's action changed at random, repeatedly, until new; after ``tries`` changes a repeat is
 accepted: a tiny joint space can be used up).
 
-Rounds, as in ``surrogate-ts``: round 0 gives every training task ``initial_random`` uniform random
-layouts; every later round gives every training task a batch of ``batch`` samples (larger when the
-budget is large, so that there are at most ``max_rounds`` rounds), task after task, each task's
-window including what the earlier tasks of the round just evaluated; the hyper-parameters are
-refitted every ``fit_every`` rounds. Many small rounds of one sweep each beat a few large rounds of
-more sweeps at the same cost (50 wing-panel positions, 100 samples each, seeds 0-1: 6 rounds of 15
-with two sweeps 4.8 um, 12 rounds 3.6 um, 30 rounds of 3 with one sweep 3.1 um).
+Rounds, as in ``surrogate-ts`` (:mod:`fixbench.solvers.bandit`), the tasks of a round proposed and
+evaluated task after task, each task's window including what the earlier tasks of the round just
+evaluated; the hyper-parameters are refitted every ``fit_every`` rounds. Many small rounds of one
+sweep each beat a few large rounds of more sweeps at the same cost (50 wing-panel positions, 100
+samples each, seeds 0-1: 6 rounds of 15 with two sweeps 4.8 um, 12 rounds 3.6 um, 30 rounds of 3
+with one sweep 3.1 um).
 
-Budget: split equally over the training tasks (``split_budget``; ``samples_per_task`` each when
-unlimited), spent exactly; at least one sample per training task, else :class:`PlannerError`.
-Per-task mode only. Returned layouts: on a training task the best layout evaluated there; on a task
-outside the evaluator's tasks (held-out track, zero samples) the coordinate descent (at most
-``held_out_sweeps``) of its window's posterior MEAN, started from the nearest training task's best
-layout.
+On a task outside the evaluator's tasks (held-out track, zero samples) the layout is the coordinate
+descent (at most ``held_out_sweeps``) of its window's posterior MEAN, started from the nearest
+training task's best layout.
 
 Measured (one thread, a shared 2-core machine, the oracle prepared beforehand): wing_panel (5
 agents, 500 tasks) at 100 samples a task, seed 0: mean max |u| 2.88 um (random search 21.8 um,
@@ -86,8 +84,8 @@ the run (both restored after), so the same seed gives the same bits.
 from __future__ import annotations
 
 import math
-import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -104,29 +102,19 @@ from gpytorch.means import ZeroMean
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import (
-    Planner,
-    PlannerConfig,
-    TracedEvaluator,
-    at_least,
-    random_layouts,
-    require,
-    require_budget,
-    split_budget,
-)
+from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit, gauss_seidel, pad_coordinates
+from fixbench.solvers.base import TracedEvaluator, at_least, random_layouts, require
 from fixbench.solvers.registry import register
-from fixbench.solvers.surrogate import move_repeats, pad_coordinates, set_positions
-from fixbench.solvers.torch_run import torch_run
-from fixbench.solvers.transfer import nearest_tasks, scaled_features, warm_layouts
+from fixbench.solvers.transfer import nearest_tasks
 
 F64 = torch.float64
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters
+# hyper-parameters (and the loop's: initial_random, tries, samples_per_task, threads in BanditConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class GPUCBConfig(PlannerConfig):
+class GPUCBConfig(BanditConfig):
     tunable: ClassVar[dict[str, tuple]] = {
         "beta": ("log", 0.25, 16.0),
         "window": ("choice", [128, 192, 256]),
@@ -141,9 +129,6 @@ class GPUCBConfig(PlannerConfig):
 
     beta: float = 4.0
     """Exploration weight: the bound is mu - sqrt(beta) sigma of the standardised log-deformation."""
-
-    initial_random: int = 10
-    """Uniform random layouts per training task before the GP is first used (round 0)."""
 
     batch: int = 3
     """Samples per training task per round (raised so that there are at most ``max_rounds`` rounds)."""
@@ -178,20 +163,10 @@ class GPUCBConfig(PlannerConfig):
     held_out_sweeps: int = 10
     """Most sweeps of the posterior-mean descent on a held-out task (no variance: cheap)."""
 
-    tries: int = 50
-    """Random one-agent changes tried to turn a repeated layout into a new one before accepting it."""
-
-    samples_per_task: int = 100
-    """Samples per training task when the budget is unlimited."""
-
-    threads: int = 1
-    """torch intra-op threads during the run (0: torch's setting); restored afterwards."""
-
     def __post_init__(self) -> None:
         super().__post_init__()
-        at_least(self, 1, "window", "initial_random", "batch", "fit_every", "fit_tasks", "fit_iters", "max_sweeps",
-                 "screen", "subset", "pool", "held_out_sweeps", "samples_per_task")
-        at_least(self, 0, "max_rounds", "transfer", "tries", "threads")
+        at_least(self, 1, "window", "fit_every", "fit_tasks", "fit_iters", "screen", "subset", "pool",
+                 "held_out_sweeps")
         require(self, "beta", self.beta > 0, "positive")
 
 
@@ -294,50 +269,45 @@ class LocalGP:
         scored and scored exactly.
         """
         loc = torch.from_numpy(loc.copy())
-        active = torch.arange(len(loc))
-        pool = {"loc": [], "mu": [], "var": []}
-        sweep = sweeps = scored = exact = 0
-        while len(active) and sweep < max_sweeps:
-            sweep, sweeps = sweep + 1, sweeps + len(active)
-            changed = torch.zeros(len(active), dtype=torch.bool)
-            for i, e in enumerate(self.E):
-                cur = loc[active]
-                base = sum(self.E[j][cur[:, j]] for j in range(len(self.E)) if j != i)
-                base = base if torch.is_tensor(base) else torch.zeros(len(cur), self.n, dtype=F64)
-                k = matern52_(base[:, None, :] + e[None]).mul_(self.kf)  # (Q, actions, n)
-                mu = k @ self.alpha
-                q_n, a_n = mu.shape
-                scored += mu.numel()
-                if cb == 0:
-                    best = torch.argmin(mu, dim=1)
-                else:
-                    lb = mu - cb * torch.sqrt(self.variance_bound(k, cur[:, i], subset))
-                    order = torch.sort(lb, dim=1, stable=True).indices
-                    score = torch.full_like(mu, math.inf)
-                    first = torch.zeros_like(mu, dtype=torch.bool)
-                    first.scatter_(1, order[:, :min(screen, a_n)], True)
-                    for rows in (first, None):
-                        if rows is None:  # second pass: every action that could still beat the best
-                            rows = (lb < score.amin(1, keepdim=True)) & torch.isinf(score)
-                        qi, ai = torch.nonzero(rows, as_tuple=True)
-                        if not len(qi):
-                            continue
-                        m, var, _ = self.stats(k[qi, ai])
-                        score[qi, ai] = m - cb * torch.sqrt(var)
-                        exact += len(qi)
-                        rows_loc = cur[qi].clone()
-                        rows_loc[:, i] = ai
-                        pool["loc"].append(rows_loc)
-                        pool["mu"].append(m)
-                        pool["var"].append(var)
-                    best = torch.argmin(score, dim=1)
-                changed |= best != cur[:, i]
-                loc[active, i] = best
-            active = active[changed]
-        if pool["loc"]:
-            pool = {key: torch.cat(v) for key, v in pool.items()}
-        pool.update(sweeps=sweeps, scored=scored, exact=exact)
-        return loc.numpy(), pool
+        found, counts = {"loc": [], "mu": [], "var": []}, {"scored": 0, "exact": 0}
+        sweeps = gauss_seidel(loc, len(self.E), max_sweeps,
+                              lambda i, active, cur: self.step(i, cur, cb, screen, subset, found, counts))
+        pool = {key: torch.cat(v) for key, v in found.items()} if found["loc"] else found
+        return loc.numpy(), {**pool, "sweeps": sweeps, **counts}
+
+    def step(self, i: int, cur: torch.Tensor, cb: float, screen: int, subset: int, found: dict,
+             counts: dict) -> torch.Tensor:
+        """Agent i's action of lowest bound (``cb`` 0: mean) for every query, the others at ``cur`` (Q,
+        n_agents): the ``screen`` lowest lower bounds scored exactly, then every action whose lower bound
+        is below the best exact score. The layouts scored exactly join ``found``; ``counts`` adds the
+        actions scored and scored exactly."""
+        base = sum(self.E[j][cur[:, j]] for j in range(len(self.E)) if j != i)
+        base = base if torch.is_tensor(base) else torch.zeros(len(cur), self.n, dtype=F64)
+        k = matern52_(base[:, None, :] + self.E[i][None]).mul_(self.kf)  # (Q, actions, n)
+        mu = k @ self.alpha
+        counts["scored"] += mu.numel()
+        if cb == 0:
+            return torch.argmin(mu, dim=1)
+        lb = mu - cb * torch.sqrt(self.variance_bound(k, cur[:, i], subset))
+        order = torch.sort(lb, dim=1, stable=True).indices
+        score = torch.full_like(mu, math.inf)
+        first = torch.zeros_like(mu, dtype=torch.bool)
+        first.scatter_(1, order[:, :min(screen, mu.shape[1])], True)
+        for rows in (first, None):
+            if rows is None:  # second pass: every action that could still beat the best
+                rows = (lb < score.amin(1, keepdim=True)) & torch.isinf(score)
+            qi, ai = torch.nonzero(rows, as_tuple=True)
+            if not len(qi):
+                continue
+            m, var, _ = self.stats(k[qi, ai])
+            score[qi, ai] = m - cb * torch.sqrt(var)
+            counts["exact"] += len(qi)
+            rows_loc = cur[qi].clone()
+            rows_loc[:, i] = ai
+            found["loc"].append(rows_loc)
+            found["mu"].append(m)
+            found["var"].append(var)
+        return torch.argmin(score, dim=1)
 
     def variance_bound(self, k: torch.Tensor, cur: torch.Tensor, subset: int) -> torch.Tensor:
         """Upper bounds (Q, actions) of the posterior variance from k(x, window) (Q, actions, n).
@@ -393,202 +363,138 @@ class LocalGP:
 
 
 # ---------------------------------------------------------------------------------------------
+# the run: windows, fits, descents of the bound, GP-BUCB batches, the mean on held-out tasks
+# ---------------------------------------------------------------------------------------------
+class UCBRun(BanditRun):
+    """One run of ``gp-ucb`` on the rounds loop (:class:`fixbench.solvers.bandit.BanditRun`)."""
+
+    clocks = ("fit", "gp", "act", "oracle")  # gp: building the local GPs of the windows
+
+    def __init__(self, cfg: GPUCBConfig, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator):
+        super().__init__(cfg, problem, ev, rng)
+        self.cb = math.sqrt(cfg.beta)
+        # inputs: scaled features; pad coordinates in [-1, 1] of the candidates' bounding box
+        self.feats = torch.tensor(self.features, dtype=F64)
+        self.pts = torch.tensor(pad_coordinates(problem), dtype=F64)
+        # the GP model: product of Matern-5/2 kernels (features x pads), BoTorch's default priors
+        self.covar, self.likelihood = gp_modules(self.feats.shape[1], self.pts.shape[1] * self.n)
+        self.hyp: Hyper | None = None
+        self.fits = self.fit_failures = 0
+        self.descents = self.sweeps = self.scored = self.exact = self.pool_picks = 0
+
+    def window(self, task: int) -> np.ndarray:
+        """Rows of the ``window`` samples nearest to ``task`` by features (newest first in a task)."""
+        out, room = [], self.cfg.window
+        for s in nearest_tasks(self.problem, self.ids, task, len(self.ids), self.features):
+            take = self.rows_of[int(s)][::-1][:room]
+            out += take
+            room -= len(take)
+            if not room:
+                break
+        return np.array(out, dtype=np.int64)
+
+    def standardised(self, rows: np.ndarray) -> np.ndarray:
+        y = self.y[rows]
+        sd = y.std() if len(y) > 1 else 0.0
+        return (y - y.mean()) / (sd if sd > 0 else 1.0)
+
+    def fit(self, rnd: int) -> None:
+        """The hyper-parameters, refitted every ``fit_every`` rounds."""
+        if rnd % self.cfg.fit_every == 0:
+            self.hyp = self.fit_hyper()
+
+    def fit_hyper(self) -> Hyper:
+        """MAP hyper-parameters on the windows of ``fit_tasks`` random training tasks (warm start)."""
+        cfg, rng = self.cfg, self.rng
+        with self.timed("fit"):
+            anchors = rng.choice(self.ids, size=min(cfg.fit_tasks, len(self.ids)), replace=False)
+            rows = np.unique(np.concatenate([self.window(int(a)) for a in anchors]))
+            if len(rows) > 1:
+                X = self.inputs(rows, self.feats, self.pts)
+                Y = torch.from_numpy(self.standardised(rows))[:, None]
+                seed = int(rng.integers(2**31 - 1))
+                with torch.random.fork_rng(devices=[]), warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    torch.manual_seed(seed)  # BoTorch's retries draw from torch's global generator
+                    model = SingleTaskGP(X, Y, likelihood=self.likelihood, covar_module=self.covar,
+                                         mean_module=ZeroMean(), outcome_transform=None)
+                    try:
+                        fit_gpytorch_mll(ExactMarginalLogLikelihood(self.likelihood, model),
+                                         optimizer_kwargs={"options": {"maxiter": cfg.fit_iters}})
+                    except ModelFittingError:  # parameters rolled back to the previous fit's
+                        self.fit_failures += 1
+                self.fits += 1
+            return to_hyper(self.covar, self.likelihood, self.feats, self.pts, self.sets)
+
+    def local_gp(self, task: int) -> LocalGP:
+        with self.timed("gp"):
+            rows = self.window(task)
+            return LocalGP(self.hyp, task, self.task[rows], self.pos[self.act[rows]], self.standardised(rows))
+
+    def propose(self, tasks: np.ndarray, counts: np.ndarray) -> Iterator[tuple[int, np.ndarray]]:
+        """Task after task (each window holds what the tasks before it in the round just evaluated)."""
+        for t, c in zip(tasks.tolist(), counts.tolist()):
+            gp = self.local_gp(t)
+            with self.timed("act"):
+                layouts = self.ucb_batch(gp, t, c)
+            yield t, layouts
+
+    def ucb_batch(self, gp: LocalGP, task: int, c: int) -> np.ndarray:
+        """``c`` layouts: the descents of the bound from the task's starts, GP-BUCB picks from their pool,
+        then random neighbours of the task's best when the pool is used up."""
+        cfg = self.cfg
+        starts = self.starts(task)
+        _, pool = gp.descend(self.pos[starts], self.cb, cfg.max_sweeps, cfg.screen, cfg.subset)
+        self.descents += len(starts)
+        self.sweeps += pool["sweeps"]
+        self.scored += pool["scored"]
+        self.exact += pool["exact"]
+        taken = set()
+        picks = gp.batch(pool, self.cb, c, cfg.pool, self.sets, self.seen[task], taken) if pool["exact"] else \
+            np.empty((0, self.n), dtype=np.int64)
+        self.pool_picks += len(picks)
+        layouts = self.layouts_of(picks)
+        if len(layouts) < c:  # pool used up: random neighbours of the task's best
+            ev = self.ev
+            base = ev.best_layout[task] if np.isfinite(ev.best[task]) else random_layouts(self.problem, self.rng, 1)[0]
+            layouts = np.vstack([layouts, self.unrepeated(task, np.tile(base, (c - len(layouts), 1)), taken)])
+        return layouts
+
+    def act_held_out(self, held: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, int]:
+        """The descent of each held-out task's window's posterior mean (at most ``held_out_sweeps``)."""
+        if self.hyp is None:
+            self.hyp = self.fit_hyper()
+        layouts, sweeps = np.zeros((len(held), self.n), dtype=np.int64), 0
+        for j, t in enumerate(held.tolist()):
+            gp = self.local_gp(t)
+            with self.timed("act"):
+                local, pool = gp.descend(self.pos[starts[j]][None], 0.0, self.cfg.held_out_sweeps, self.cfg.screen, 0)
+                layouts[j] = self.layouts_of(local)[0]
+                sweeps += pool["sweeps"]
+        return layouts, sweeps
+
+    def model_info(self) -> dict:
+        return {
+            "fits": self.fits,
+            "fit_failures": self.fit_failures,
+            "lengthscales_features": self.covar.kernels[0].lengthscale.detach()[0].tolist(),
+            "lengthscales_pads": self.covar.kernels[1].lengthscale.detach()[0].tolist(),
+            "noise": float(self.likelihood.noise.detach()[0]),
+            "descents": self.descents,
+            "sweeps_mean": self.sweeps / self.descents if self.descents else 0.0,
+            "exact_fraction": self.exact / self.scored if self.scored else 0.0,
+            "pool_picks": self.pool_picks,
+        }
+
+
+# ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
 @register
-class GPUCB(Planner):
+class GPUCB(RoundsBandit):
     name = "gp-ucb"
     family = "bandit"
     description = "Contextual GP bandit (CGP-UCB, batched by GP-BUCB) on local exact GPs of log-deformation"
     Config = GPUCBConfig
     modes = ("per-task",)
-    same_on_every_host = False
-
-    def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
-        cfg = self.config
-        require_budget(self.name, ev.remaining, len(ev.tasks), "one layout per task")
-        with torch_run(cfg.threads):
-                return self._run(problem, ev, rng)
-
-    def _run(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator):
-        cfg, n, sets = self.config, problem.n_agents, problem.action_sets
-        cb = math.sqrt(cfg.beta)
-        t_start = time.perf_counter()
-        t_fit = t_gp = t_act = t_oracle = 0.0
-
-        # inputs: scaled features; pad coordinates in [-1, 1] of the candidates' bounding box
-        f_np = scaled_features(problem)
-        feats = torch.tensor(f_np, dtype=F64)
-        pts = torch.tensor(pad_coordinates(problem), dtype=F64)
-        d_pad = pts.shape[1]  # pad coordinates of one agent's action
-        pos = set_positions(problem)
-
-        # the data: every evaluated (task, layout) and its log max deformation
-        ids = ev.tasks
-        shares = np.array(split_budget(ev.budget, len(ids), cfg.samples_per_task))
-        cap = int(shares.sum())
-        D_task = np.zeros(cap, dtype=np.int64)
-        D_act = np.zeros((cap, n), dtype=np.int64)
-        D_y = np.zeros(cap)
-        size = 0
-        rows_of = {int(t): [] for t in ids}
-        seen = {int(t): set() for t in ids}
-
-        def evaluate(task: int, layouts: np.ndarray) -> None:
-            nonlocal size, t_oracle
-            t0 = time.perf_counter()
-            u = ev.evaluate(task, layouts).max_u
-            t_oracle += time.perf_counter() - t0
-            m = len(layouts)
-            D_task[size:size + m] = task
-            D_act[size:size + m] = layouts
-            D_y[size:size + m] = np.log(np.maximum(u, 1e-30))
-            rows_of[task].extend(range(size, size + m))
-            size += m
-            seen[task].update(map(tuple, layouts.tolist()))
-
-        def window(task: int) -> np.ndarray:
-            """Rows of the ``window`` samples nearest to ``task`` by features (newest first in a task)."""
-            out, room = [], cfg.window
-            for s in nearest_tasks(problem, ids, task, len(ids), f_np):
-                rows = rows_of[int(s)]
-                take = rows[::-1][:room]
-                out += take
-                room -= len(take)
-                if not room:
-                    break
-            return np.array(out, dtype=np.int64)
-
-        def standardised(rows: np.ndarray) -> np.ndarray:
-            y = D_y[rows]
-            sd = y.std() if len(y) > 1 else 0.0
-            return (y - y.mean()) / (sd if sd > 0 else 1.0)
-
-        # the GP model: product of Matern-5/2 kernels (features x pads), BoTorch's default priors
-        covar, likelihood = gp_modules(feats.shape[1], n * d_pad)
-        fits = fit_failures = 0
-
-        def fit() -> Hyper:
-            """MAP hyper-parameters on the windows of ``fit_tasks`` random training tasks (warm start)."""
-            nonlocal t_fit, fits, fit_failures
-            t0 = time.perf_counter()
-            anchors = rng.choice(ids, size=min(cfg.fit_tasks, len(ids)), replace=False)
-            rows = np.unique(np.concatenate([window(int(a)) for a in anchors]))
-            if len(rows) > 1:
-                X = torch.cat([feats[torch.from_numpy(D_task[rows])],
-                               pts[torch.from_numpy(D_act[rows])].reshape(len(rows), -1)], 1)
-                Y = torch.from_numpy(standardised(rows))[:, None]
-                seed = int(rng.integers(2**31 - 1))
-                with torch.random.fork_rng(devices=[]), warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    torch.manual_seed(seed)  # BoTorch's retries draw from torch's global generator
-                    model = SingleTaskGP(X, Y, likelihood=likelihood, covar_module=covar, mean_module=ZeroMean(),
-                                         outcome_transform=None)
-                    try:
-                        fit_gpytorch_mll(ExactMarginalLogLikelihood(likelihood, model),
-                                         optimizer_kwargs={"options": {"maxiter": cfg.fit_iters}})
-                    except ModelFittingError:  # parameters rolled back to the previous fit's
-                        fit_failures += 1
-                fits += 1
-            t_fit += time.perf_counter() - t0
-            return to_hyper(covar, likelihood, feats, pts, sets)
-
-        def local_gp(hyp: Hyper, task: int) -> LocalGP:
-            nonlocal t_gp
-            t0 = time.perf_counter()
-            rows = window(task)
-            gp = LocalGP(hyp, task, D_task[rows], pos[D_act[rows]], standardised(rows))
-            t_gp += time.perf_counter() - t0
-            return gp
-
-        # round 0: uniform random layouts seed the model
-        left = shares.copy()
-        moved = 0
-        for t, s in zip(ids, shares):
-            m = min(cfg.initial_random, int(s))
-            if m:
-                layouts, k = move_repeats(random_layouts(problem, rng, m), seen[int(t)], set(), sets, rng, cfg.tries)
-                moved += k
-                evaluate(int(t), layouts)
-        left -= np.minimum(cfg.initial_random, shares)
-
-        # rounds: refit, then every training task gets a batch: descents of the bound, GP-BUCB picks
-        batch = max(cfg.batch, math.ceil(int(left.max(initial=0)) / max(cfg.max_rounds, 1)))
-        rounds = descents = sweeps_sum = scored = exact = pool_picks = 0
-        hyp = None
-        while left.any():
-            if hyp is None or rounds % cfg.fit_every == 0:
-                hyp = fit()
-            rounds += 1
-            counts = np.minimum(left, batch)
-            for t, c in zip(ids, counts):
-                if not c:
-                    continue
-                t, c = int(t), int(c)
-                gp = local_gp(hyp, t)
-                t0 = time.perf_counter()
-                starts = [ev.best_layout[t][None]] if np.isfinite(ev.best[t]) else []
-                starts.append(warm_layouts(problem, ev.best, ev.best_layout, t, cfg.transfer))
-                starts.append(random_layouts(problem, rng, 1))
-                starts = np.vstack(starts)
-                _, first = np.unique(starts, axis=0, return_index=True)
-                starts = starts[np.sort(first)]
-                _, pool = gp.descend(pos[starts], cb, cfg.max_sweeps, cfg.screen, cfg.subset)
-                descents += len(starts)
-                sweeps_sum += pool["sweeps"]
-                scored += pool["scored"]
-                exact += pool["exact"]
-                proposals, taken = [], set()
-                if pool["exact"]:
-                    picks = gp.batch(pool, cb, c, cfg.pool, sets, seen[t], taken)
-                    proposals = [[sets[i][a] for i, a in enumerate(row)] for row in picks.tolist()]
-                    pool_picks += len(picks)
-                if len(proposals) < c:  # pool used up: random neighbours of the task's best
-                    base = ev.best_layout[t] if np.isfinite(ev.best[t]) else random_layouts(problem, rng, 1)[0]
-                    extra, k = move_repeats(np.tile(base, (c - len(proposals), 1)), seen[t], taken, sets, rng,
-                                            cfg.tries)
-                    moved += k
-                    proposals += list(extra)
-                t_act += time.perf_counter() - t0
-                evaluate(t, np.array(proposals, dtype=np.int64).reshape(c, n))
-            left -= counts
-
-        # layouts: the best evaluated on each training task; the posterior mean's descent elsewhere
-        layouts = ev.best_layout.copy()
-        held = np.setdiff1d(np.arange(problem.n_tasks), ids)
-        held_sweeps = 0
-        if len(held):
-            if hyp is None:
-                hyp = fit()
-            for t in held:
-                src = nearest_tasks(problem, ids, int(t), 1, f_np)[0]
-                gp = local_gp(hyp, int(t))
-                t0 = time.perf_counter()
-                local, pool = gp.descend(pos[ev.best_layout[src]][None], 0.0, cfg.held_out_sweeps, cfg.screen, 0)
-                layouts[t] = [sets[i][local[0, i]] for i in range(n)]
-                held_sweeps += pool["sweeps"]
-                t_act += time.perf_counter() - t0
-        per_task = ev.task_samples[ids]
-        info = {
-            "samples_per_task": int(per_task.min()) if per_task.min() == per_task.max() else per_task.tolist(),
-            "rounds": rounds,
-            "batch": int(batch),
-            "fits": fits,
-            "fit_failures": fit_failures,
-            "lengthscales_features": covar.kernels[0].lengthscale.detach()[0].tolist(),
-            "lengthscales_pads": covar.kernels[1].lengthscale.detach()[0].tolist(),
-            "noise": float(likelihood.noise.detach()[0]),
-            "descents": descents,
-            "sweeps_mean": sweeps_sum / descents if descents else 0.0,
-            "exact_fraction": exact / scored if scored else 0.0,
-            "pool_picks": pool_picks,
-            "held_out_sweeps": held_sweeps,
-            "repeats_moved": int(moved),
-            "time_fit_s": t_fit,
-            "time_gp_s": t_gp,
-            "time_act_s": t_act,
-            "time_oracle_s": t_oracle,
-            "time_total_s": time.perf_counter() - t_start,
-            "torch_threads": torch.get_num_threads(),
-        }
-        return layouts, info
+    Run = UCBRun

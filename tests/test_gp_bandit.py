@@ -47,6 +47,18 @@ def test_refuses_a_budget_below_one_sample_a_task(problem):
         GPUCB(window=0).solve(problem, 100, seed=0)
 
 
+def test_held_out_tasks_without_a_round_get_the_posterior_means_layout_and_no_sample(problem):
+    """A budget inside round 0: the hyper-parameters are fitted once for the held-out tasks."""
+    train, budget = [0, 2], 2 * 4
+    first = GPUCB(fit_iters=10).solve(problem, budget, seed=3, train_tasks=train)
+    again = GPUCB(fit_iters=10).solve(problem, budget, seed=3, train_tasks=train)
+    assert first.samples == budget and set(first.trace[:, 0].astype(int)) == set(train)
+    np.testing.assert_array_equal(first.held_out, [1, 3])
+    assert first.info["rounds"] == 0 and first.info["fits"] == 1 and first.info["descents"] == 0
+    assert "held_out_from" not in first.info and first.info["held_out_sweeps"] >= 2
+    np.testing.assert_array_equal(first.layouts, again.layouts)
+
+
 def _random_gp(seed: int, sizes=(6, 7, 5), n_tasks=4, n_window=30):
     """A LocalGP on a random window, the BoTorch model on the same data, and their inputs."""
     g = torch.Generator().manual_seed(seed)

@@ -63,3 +63,15 @@ def test_best_response_tables_equal_the_network():
                                pts[torch.from_numpy(glob)].reshape(sizes[i], -1)], 1)
                 want = model(x.expand(2, -1, -1))[k]
                 torch.testing.assert_close(got[q], want.detach(), rtol=1e-5, atol=1e-5)
+
+
+def test_held_out_tasks_without_a_round_get_the_ensemble_means_layout_and_no_sample(problem):
+    """A budget inside round 0: the ensemble is trained once for the held-out tasks and acts there."""
+    train, budget = [0, 2], 2 * 4
+    first = SurrogateTS(train_steps=20).solve(problem, budget, seed=3, train_tasks=train)
+    again = SurrogateTS(train_steps=20).solve(problem, budget, seed=3, train_tasks=train)
+    assert first.samples == budget and set(first.trace[:, 0].astype(int)) == set(train)
+    np.testing.assert_array_equal(first.held_out, [1, 3])
+    assert first.info["rounds"] == 0 and first.info["train_steps"] == 20  # the held-out fit alone
+    assert "held_out_from" not in first.info and first.info["held_out_sweeps"] >= 2
+    np.testing.assert_array_equal(first.layouts, again.layouts)
