@@ -21,6 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from fixbench.cases.problem import Problem
+from fixbench.solvers.learners import action_positions, task_features
 
 
 # ---------------------------------------------------------------------------------------------
@@ -365,19 +366,15 @@ class Learner:
         cols_pad = np.zeros((n, opt_max, m), dtype=np.int64)
         for i, c in enumerate(cols):
             cols_pad[i, :len(c)] = c + width * np.arange(m)  # head k's columns start at k * width
-        # state features min-max normalised over the problem's tasks (constant features -> 0.5)
-        f = problem.features.astype(np.float64)
-        lo, span = f.min(axis=0), np.ptp(f, axis=0)
-        feats = np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5)
+        feats = task_features(problem)  # state features, min-max normalised over the problem's tasks
         self.feats = torch.tensor(feats, dtype=torch.float32, device=device)  # (T, F)
         # action positions (its pads' (x, y)) normalised to the candidates' bounding box, padded per agent
-        c = problem.candidates
-        cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
-        d = problem.points.shape[1]
+        options_pos = action_positions(problem)
+        d = options_pos.shape[1]
         pos = np.full((n, opt_max, d), 0.5)
         centre = np.zeros((n, d))
         for i, s in enumerate(problem.action_sets):
-            pos[i, :len(s)] = (problem.points[s] - np.tile(cmin, d // 2)) / np.tile(cspan, d // 2)
+            pos[i, :len(s)] = options_pos[s]
             centre[i] = pos[i, :len(s)].mean(axis=0)
         self.pos = torch.tensor(pos, dtype=torch.float32, device=device)  # (N, A, D)
         self.others = torch.tensor([[j for j in range(n) if j != i] for i in range(n)],

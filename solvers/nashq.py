@@ -2,7 +2,9 @@
 
 Read top to bottom (cleanrl style): hyper-parameters, the training loop on the PettingZoo env, the
 greedy policy, the two planners. The engine that makes it fast (batched Q-networks, fused optimiser,
-compiled best response) lives beside it in :mod:`fixbench.solvers.marl_engine`.
+compiled best response) lives beside it in :mod:`fixbench.solvers.marl_engine`; what every learner
+shares (the split, the budget as episodes, the replay, the step record, the ``info`` keys) in
+:mod:`fixbench.solvers.learners`.
 
 The game (docs/protocol.md#the-game): each step shows the agents one task (its feature vector); each agent
 picks one candidate of its own set; the layout is evaluated once on the counted oracle (one sample
@@ -49,7 +51,6 @@ task; ``episode_regret_reward`` is sum of (r* - r) with r* the best reward seen 
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import ClassVar
@@ -57,10 +58,25 @@ from typing import ClassVar
 import numpy as np
 import torch
 
-from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
+from fixbench.solvers.base import Planner, PlannerError, TracedEvaluator, at_least, require
+from fixbench.solvers.learners import (
+    LearnerConfig,
+    Replay,
+    StepRecord,
+    Timings,
+    episodes_that_fit,
+    epsilon_by_step,
+    explore,
+    learner_info,
+    per_episode,
+    policy_layouts,
+    scaled_reward,
+    torch_generator,
+    train_split,
+    training_env,
+)
 from fixbench.solvers.marl_engine import Learner, Update
 from fixbench.solvers.registry import register
 from fixbench.solvers.torch_run import torch_run
@@ -70,10 +86,10 @@ REWARDS = ("scaled", "gaussian", "bell")
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters
+# hyper-parameters (and those every learner has: fixbench.solvers.learners.LearnerConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class NashQConfig(PlannerConfig):
+class NashQConfig(LearnerConfig):
     tunable: ClassVar[dict[str, tuple]] = {
         "lr": ("log", 1e-05, 0.001),
         "eps_decay": ("log", 100.0, 10000.0),
@@ -83,17 +99,9 @@ class NashQConfig(PlannerConfig):
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
 
-    episodes: int = 100
-    """Passes over the training tasks (seed Table I: 100)."""
-
-    eps_start: float = 0.9
-    """Initial exploration probability (per agent)."""
-
-    eps_end: float = 0.05
-    """Final exploration probability."""
-
     eps_decay: float = 3500.0
-    """Epsilon = end + (start - end) exp(-steps / decay), steps counted over the whole run."""
+    """Epsilon decay in env steps, the same in a run of any length: epsilon = end + (start - end)
+    exp(-steps / eps_decay), steps counted over the whole run (``learners.epsilon_by_step``)."""
 
     alpha: float = 0.8
     """Bandit learning rate: target = (1 - alpha) Q_target(s, a) + alpha r."""
@@ -103,9 +111,6 @@ class NashQConfig(PlannerConfig):
 
     batch: int = 32
     """Replay minibatch per agent per step; updates start once the buffer holds this many."""
-
-    capacity: int = 1_000_000
-    """Replay capacity (transitions); never more is allocated than the run has steps."""
 
     hidden: int = 256
     """Width of the three hidden layers."""
@@ -121,20 +126,8 @@ class NashQConfig(PlannerConfig):
     samples: no width set by hand; :class:`fixbench.cases.rewards.LogScale`), 'gaussian' (seed paper,
     the case's hand-set ``[reward]`` widths) or 'bell' (reference code)."""
 
-    scale_samples: int = 500
-    """'scaled' reward: the first samples whose ln u give its mean and spread (then frozen)."""
-
     max_sweeps: int = 10
     """nashq: most Gauss-Seidel best-response sweeps per joint action."""
-
-    shuffle: bool = False
-    """Visit the training tasks in a new random order each episode (reference: in order)."""
-
-    train_tasks: tuple[int, ...] = ()
-    """Train only on these task indices (held-out tasks get the greedy policy, no samples)."""
-
-    train_fraction: float = 1.0
-    """If train_tasks is empty: train on this fraction of tasks, evenly spaced over the task list."""
 
     optima: tuple[float, ...] = ()
     """Per-task optimal max deformation (m) for the true regret; empty: best seen in the run."""
@@ -142,48 +135,20 @@ class NashQConfig(PlannerConfig):
     device: str = "cpu"
     """'cpu' or 'cuda' (only if available)."""
 
-    threads: int = 1
-    """torch intra-op threads during the run (0: torch's setting). 1: tiny ops gain nothing from
-    more, and spinning OpenMP threads on a shared, loaded machine slowed updates 40x (measured)."""
-
     save_path: str = ""
     """If set, torch.save(state_dict) of the trained Q-networks to this file."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_learner(self)
-        at_least(self, 1, "max_sweeps")
+        at_least(self, 1, "hidden", "batch", "max_sweeps")
+        require(self, "lr", self.lr > 0, "positive")
+        require(self, "eps_decay", self.eps_decay > 0, "positive")
         require(self, "alpha", 0 < self.alpha <= 1, "in (0, 1]")
         require(self, "grad_clip", self.grad_clip > 0, "positive")
         require(self, "tau", 0 < self.tau <= 1, "in (0, 1]")
         require(self, "reward", self.reward in REWARDS, f"one of {', '.join(REWARDS)}")
         require(self, "device", self.device in ("cpu", "cuda"), "'cpu' or 'cuda'")
         require(self, "optima", all(u > 0 for u in self.optima), "positive deformations (m)")
-
-
-def check_learner(cfg: PlannerConfig) -> None:
-    """The checks of the fields nashq/iql and vdn share (same names, same meanings)."""
-    at_least(cfg, 1, "episodes", "hidden", "batch", "capacity")
-    at_least(cfg, 2, "scale_samples")
-    at_least(cfg, 0, "threads")
-    require(cfg, "lr", cfg.lr > 0, "positive")
-    require(cfg, "eps_start", 0 <= cfg.eps_start <= 1, "in [0, 1]")
-    require(cfg, "eps_end", 0 <= cfg.eps_end <= 1, "in [0, 1]")
-    require(cfg, "eps_decay", cfg.eps_decay > 0, "positive")
-    require(cfg, "train_tasks", all(t >= 0 for t in cfg.train_tasks), "task indices (0 or more)")
-    require(cfg, "train_fraction", 0 < cfg.train_fraction <= 1, "in (0, 1]")
-
-
-def train_ids(problem: Problem, cfg: NashQConfig) -> np.ndarray:
-    """Training task indices from ``train_tasks`` or ``train_fraction`` (evenly spaced)."""
-    t = problem.n_tasks
-    if cfg.train_tasks:
-        ids = np.unique(np.asarray(cfg.train_tasks, dtype=np.int64))
-        if ids.max() >= t:
-            raise PlannerError(f"train_tasks must be in 0..{t - 1}")
-        return ids
-    k = max(1, round(cfg.train_fraction * t))
-    return np.unique(np.round(np.linspace(0, t - 1, k)).astype(np.int64))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -204,48 +169,27 @@ class _QPlanner(Planner):
             raise PlannerError(f"planner '{self.name}': device 'cuda' asked but CUDA is not available")
         if cfg.optima and len(cfg.optima) != problem.n_tasks:
             raise PlannerError(f"optima: {len(cfg.optima)} values for {problem.n_tasks} tasks")
-        device = torch.device(cfg.device)
-        # the held-out track restricts the evaluator to the training tasks; else the config chooses
-        ids = ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
+        ids = train_split(problem, ev, cfg)
         n, n_train = problem.n_agents, len(ids)
-        fit = cfg.episodes if math.isinf(ev.remaining) else int(ev.remaining // n_train)
-        if fit < 1:
-            raise PlannerError(f"planner '{self.name}': budget too small: one episode needs {n_train} "
-                               f"samples, {int(ev.remaining)} available")
-        episodes = min(cfg.episodes, fit)
-
-        # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
-        # networks' initial weights); torch's global generator is neither seeded nor drawn from
-        gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
+        episodes = episodes_that_fit(self.name, cfg.episodes, ev, n_train)
+        gen = torch_generator(rng)
         with torch_run(cfg.threads):
-            run = self._train(problem, ev, rng, ids, episodes, device, gen)
-        layouts, (step_reward, step_u, step_task, ep_return, ep_loss) = run["layouts"], run["record"]
+            run = self._train(problem, ev, rng, ids, episodes, torch.device(cfg.device), gen)
+        record, ep_loss = run["record"], run["episode_loss"]
         sweeps_sum, conv_sum, br_calls = run["sweeps"]
-        t_oracle, t_select, t_update, t_greedy = run["times"]
         g_sweeps, g_conv = run["greedy"]
 
-        # training record -------------------------------------------------------------------------
-        rew_arr, u_arr, task_arr = np.array(step_reward), np.array(step_u), np.array(step_task)
+        # regrets: the reference code's, the true one (against the optima, else the best seen), the reward's
+        rew_arr, u_arr, task_arr = record.arrays()
         best_u = np.full(problem.n_tasks, np.inf)
         best_r = np.full(problem.n_tasks, -np.inf)
         np.minimum.at(best_u, task_arr, u_arr)
         np.maximum.at(best_r, task_arr, rew_arr)
         u_star = np.asarray(cfg.optima, dtype=float) if cfg.optima else best_u
-        per_ep = lambda x: x.reshape(episodes, n_train).sum(axis=1).tolist()  # noqa: E731
-        info = {
-            "algorithm": self.name,
-            "episodes_run": episodes,
-            "budget_limited": episodes < cfg.episodes,
-            "train_tasks": ids.tolist(),
-            "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
-            "steps": len(step_reward),
-            "step_reward": rew_arr.tolist(),
-            "step_max_u": u_arr.tolist(),
-            "step_task": task_arr.tolist(),
-            "episode_return": ep_return,
-            "episode_regret_ref": [n * n_train * REFERENCE_OPTIMAL_REWARD - n * r for r in ep_return],
-            "episode_regret_true": per_ep(u_arr - u_star[task_arr]),
-            "episode_regret_reward": per_ep(best_r[task_arr] - rew_arr),
+        own = {
+            "episode_regret_ref": [n * n_train * REFERENCE_OPTIMAL_REWARD - n * r for r in run["episode_return"]],
+            "episode_regret_true": per_episode(u_arr - u_star[task_arr], episodes),
+            "episode_regret_reward": per_episode(best_r[task_arr] - rew_arr, episodes),
             "regret_reference": "optima" if cfg.optima else "best seen in run",
             "best_seen_max_u": [float(x) if np.isfinite(x) else None for x in best_u],
             "td_loss": [[ep[i] for ep in ep_loss] for i in range(n)],  # per agent, mean per episode
@@ -253,107 +197,83 @@ class _QPlanner(Planner):
             "br_converged_frac": conv_sum / br_calls if br_calls else 1.0,
             "greedy_sweeps": g_sweeps,
             "greedy_converged": bool(g_conv),
-            "time_oracle_s": t_oracle,
-            "time_select_s": t_select,
-            "time_update_s": t_update,
-            "time_greedy_s": t_greedy,
-            "time_setup_s": run["setup"],  # oracle set-up before training (in no other timer)
-            "time_total_s": time.perf_counter() - t_start,
             # cumulative seconds at the end of each episode (where a run slows down, and why)
             "time_oracle_cum_s": [t[0] for t in run["episode_times"]],
             "time_select_cum_s": [t[1] for t in run["episode_times"]],
             "time_update_cum_s": [t[2] for t in run["episode_times"]],
-            "torch_threads": cfg.threads or torch.get_num_threads(),  # restored: the setting outside the run
         }
-        return layouts, info
-
+        info = learner_info(self.name, cfg, problem, ids, episodes, record, run["episode_return"], own,
+                            run["times"], t_start)
+        return run["layouts"], info
 
     def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
                episodes: int, device: torch.device, gen: torch.Generator) -> dict:
         """The training loop and the greedy policy (run under :func:`torch_run`)."""
         cfg, n = self.config, problem.n_agents
-        steps_total = episodes * len(ids)
-        t_setup = time.perf_counter()
-        problem.oracle.prepare()  # set-up, not training: every column now (or from the disk cache), no samples
-        t_setup = time.perf_counter() - t_setup
-        L = Learner(problem, cfg.hidden, cfg.max_sweeps, self.joint, device, gen)
-        opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
         # the scaled reward is the learner's own transform of the env's max_u (the env pays the Gaussian)
         scale = LogScale(cfg.scale_samples) if cfg.reward == "scaled" else None
-        env = FixtureEnv(problem, reward="gaussian" if scale else cfg.reward, shuffle=cfg.shuffle,
-                         task_ids=ids, evaluator=ev)
-        agents = env.possible_agents
+        env, setup_s = training_env(problem, ev, ids, cfg.shuffle, "gaussian" if scale else cfg.reward)
+        tm = Timings(setup=setup_s)
+        L = Learner(problem, cfg.hidden, cfg.max_sweeps, self.joint, device, gen)
+        opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
+        replay = Replay(cfg.capacity, episodes * len(ids), n, device)  # the reward, or ln u for the scaled reward
+        agents, sizes = env.possible_agents, np.array(L.sizes)
 
-        cap = min(cfg.capacity, steps_total)
-        buf_task = torch.zeros(cap, dtype=torch.long, device=device)
-        buf_act = torch.zeros(cap, n, dtype=torch.long, device=device)
-        buf_rew = torch.zeros(cap, dtype=torch.float32, device=device)
-        sizes = np.array(L.sizes)
-
-        step_reward, step_u, step_task = [], [], []
-        ep_return, ep_loss, ep_times = [], [], []
+        record, ep_return, ep_loss, ep_times = StepRecord(), [], [], []
         sweeps_sum, conv_sum, br_calls = 0, 0, 0
-        t_oracle = t_select = t_update = 0.0
         steps = 0
         for _ in range(episodes):
-            obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
+            env.reset(seed=int(rng.integers(2**31 - 1)))
             loss_sum, n_upd, ret = torch.zeros(n, device=device), 0, 0.0
             while env.agents:
+                # act: exploring agents play a random action, the others best-respond to them
                 t0 = time.perf_counter()
                 task = env.task
-                eps = cfg.eps_end + (cfg.eps_start - cfg.eps_end) * math.exp(-steps / cfg.eps_decay)
-                explore = rng.random(n) < eps
-                rand = (rng.random(n) * sizes).astype(np.int64)
-                if explore.all():
-                    act = rand
-                else:
-                    a, sw, cv = L.greedy(np.array([task]), explore[None], rand[None])
+                explorers, act = explore(rng, epsilon_by_step(steps, cfg.eps_start, cfg.eps_end, cfg.eps_decay),
+                                         sizes)
+                if not explorers.all():
+                    a, sw, cv = L.greedy(np.array([task]), explorers[None], act[None])
                     act = a[0]
                     sweeps_sum, conv_sum, br_calls = sweeps_sum + sw, conv_sum + cv, br_calls + 1
                 t1 = time.perf_counter()
                 _, rew, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
                 t2 = time.perf_counter()
-                r = rew[agents[0]]
-                info = infos[agents[0]]
-                stored = r  # what the replay keeps: the reward, or ln u for the scaled reward
+
+                # record: the step's reward (scaled from max_u, or the env's), into the replay
+                max_u = infos[agents[0]]["max_u"]
+                r = stored = rew[agents[0]]
                 if scale is not None:
-                    stored = math.log(info["max_u"])
-                    scale.add(stored)
-                    r = float(scale.reward(stored))
-                step_reward.append(r)
-                step_u.append(info["max_u"])
-                step_task.append(task)
+                    r, stored = scaled_reward(scale, max_u)
+                record.add(r, max_u, task)
                 ret += r
-                k = steps % cap
-                buf_task[k] = task
-                buf_act[k] = torch.from_numpy(act)
-                buf_rew[k] = stored
+                replay.add(task, act, stored)
                 steps += 1
-                size = min(steps, cap)
-                if size >= cfg.batch:
-                    idx = torch.from_numpy(rng.integers(0, size, (n, cfg.batch))).to(device)
-                    batch_r = buf_rew[idx] if scale is None else scale.reward(buf_rew[idx])
-                    loss = L.td_grad(buf_task[idx], buf_act[idx], batch_r, cfg.alpha)
+
+                # learn: every agent on its own minibatch, target (1 - alpha) Q_target + alpha r
+                if len(replay) >= cfg.batch:
+                    tasks, acts, stored_r = replay.sample(rng, (n, cfg.batch))
+                    batch_r = stored_r if scale is None else scale.reward(stored_r)
+                    loss = L.td_grad(tasks, acts, batch_r, cfg.alpha)
                     opt.step()  # clip, AdamW, soft target update
                     loss_sum += loss
                     n_upd += 1
-                t_select += t1 - t0
-                t_oracle += t2 - t1
-                t_update += time.perf_counter() - t2
-            ep_return.append(ret)
+                tm.select += t1 - t0
+                tm.oracle += t2 - t1
+                tm.update += time.perf_counter() - t2
+            ep_return.append(ret)  # summed in step order, as the reference code does
             ep_loss.append((loss_sum / max(n_upd, 1)).cpu().tolist())
-            ep_times.append((t_oracle, t_select, t_update))
+            ep_times.append((tm.oracle, tm.select, tm.update))
 
         # greedy policy on every task (training and held-out): no samples
         t3 = time.perf_counter()
         actions, g_sweeps, g_conv = L.greedy(np.arange(problem.n_tasks))
-        layouts = np.column_stack([problem.action_sets[i][actions[:, i]] for i in range(n)])
-        t_greedy = time.perf_counter() - t3
+        layouts = policy_layouts(problem, actions)
+        tm.greedy = time.perf_counter() - t3
         if cfg.save_path:
             torch.save(L.q.state_dict(), cfg.save_path)
-        return {"layouts": layouts, "record": (step_reward, step_u, step_task, ep_return, ep_loss),
-                "sweeps": (sweeps_sum, conv_sum, br_calls), "times": (t_oracle, t_select, t_update, t_greedy),
-                "greedy": (g_sweeps, g_conv), "episode_times": ep_times, "setup": t_setup}
+        return {"layouts": layouts, "record": record, "episode_return": ep_return, "episode_loss": ep_loss,
+                "sweeps": (sweeps_sum, conv_sum, br_calls), "times": tm, "greedy": (g_sweeps, g_conv),
+                "episode_times": ep_times}
 
 
 @register

@@ -8,7 +8,9 @@ acting on its own Q_i; with parameter sharing (one network for all agents, an ag
 inputs), the paper's strongest variant. The cooperative MARL reference beside ``nashq`` / ``iql``.
 
 Read top to bottom (cleanrl style): hyper-parameters, the shared Q-network, the training loop on the
-PettingZoo env (:class:`fixbench.cases.env.FixtureEnv`), the greedy policy.
+PettingZoo env (:class:`fixbench.cases.env.FixtureEnv`), the greedy policy. What every learner shares
+(the split, the budget as episodes, the replay, the step record, the ``info`` keys) is in
+:mod:`fixbench.solvers.learners`.
 
 The game (docs/protocol.md#the-game): each step shows every agent one task (its feature vector); each
 agent picks one action of its own set; the layout is evaluated once on the counted oracle (one sample
@@ -53,20 +55,36 @@ import numpy as np
 import torch
 from torch import nn
 
-from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
-from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
-from fixbench.solvers.nashq import check_learner, train_ids
+from fixbench.solvers.base import Planner, TracedEvaluator, at_least, require
+from fixbench.solvers.learners import (
+    LearnerConfig,
+    Replay,
+    StepRecord,
+    Timings,
+    action_positions,
+    episodes_that_fit,
+    epsilon_by_run_fraction,
+    explore,
+    learner_info,
+    per_episode,
+    policy_layouts,
+    scaled_reward,
+    task_features,
+    torch_generator,
+    train_split,
+    training_env,
+)
 from fixbench.solvers.registry import register
 from fixbench.solvers.torch_run import torch_run
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters
+# hyper-parameters (and those every learner has: fixbench.solvers.learners.LearnerConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class VDNConfig(PlannerConfig):
+class VDNConfig(LearnerConfig):
     tunable: ClassVar[dict[str, tuple]] = {
         "lr": ("log", 3e-4, 1e-2),
         "eps_decay": ("log", 0.05, 0.5),
@@ -74,9 +92,6 @@ class VDNConfig(PlannerConfig):
         "batch": ("choice", [32, 64, 128]),
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
-
-    episodes: int = 100
-    """Passes over the training tasks (as nashq / iql: 100, i.e. 100 samples a task)."""
 
     hidden: int = 128
     """Width of each hidden layer of the shared Q-network."""
@@ -96,43 +111,20 @@ class VDNConfig(PlannerConfig):
     update_every: int = 1
     """One update every this many env steps."""
 
-    capacity: int = 1_000_000
-    """Replay capacity (transitions); never more is allocated than the run has steps."""
-
-    eps_start: float = 0.9
-    """Initial exploration probability (per agent, independently)."""
-
-    eps_end: float = 0.05
-    """Final exploration probability."""
-
     eps_decay: float = 0.2
-    """Epsilon = end + (start - end) exp(-step / (eps_decay * run steps)): a fraction of the run, so that
-    a short run exploits too (the 50,000-step protocol run: 10,000 steps; nashq's is 3,500 in any run)."""
-
-    scale_samples: int = 500
-    """The scaled reward: the first samples whose ln u give its mean and spread (then frozen)."""
-
-    shuffle: bool = False
-    """Visit the training tasks in a new random order each episode (else in order)."""
-
-    train_tasks: tuple[int, ...] = ()
-    """Train only on these task indices (held-out tasks get the greedy policy, no samples)."""
-
-    train_fraction: float = 1.0
-    """If train_tasks is empty: train on this fraction of tasks, evenly spaced over the task list."""
+    """Epsilon decay as a fraction of the run's steps: epsilon = end + (start - end) exp(-step / (eps_decay
+    * run steps)), so that a short run exploits too (the 50,000-step protocol run: 10,000 steps; nashq's
+    ``eps_decay`` is in steps, 3,500 in any run; ``learners.epsilon_by_run_fraction``)."""
 
     greedy_chunk: int = 32
     """Tasks scored at once by the final greedy policy (memory: chunk x all actions x hidden floats)."""
 
-    threads: int = 1
-    """torch intra-op threads during the run (0: torch's setting); restored afterwards. 1: the ops are
-    small, and spinning threads on a shared, loaded machine cost more than they gain (as nashq)."""
-
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_learner(self)
-        at_least(self, 1, "layers", "update_every", "greedy_chunk")
+        at_least(self, 1, "hidden", "layers", "batch", "update_every", "greedy_chunk")
+        require(self, "lr", self.lr > 0, "positive")
         require(self, "weight_decay", self.weight_decay >= 0, "0 or more")
+        require(self, "eps_decay", self.eps_decay > 0, "positive")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -171,11 +163,7 @@ class Actions:
 
     def __init__(self, problem: Problem):
         n, sizes = problem.n_agents, [len(s) for s in problem.action_sets]
-        c = problem.candidates
-        cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
-        pts = problem.points  # (options, 2 m)
-        reps = pts.shape[1] // 2
-        pos = (pts - np.tile(cmin, reps)) / np.tile(cspan, reps)
+        pos = action_positions(problem)  # (options, 2 m)
         if not problem.spec.effector.simple:  # an idle pad's "no pad" sits at the centroid: say so
             pos = np.concatenate([pos, (problem.options >= 0).astype(float)], axis=1)
         parts = [np.concatenate([pos[s], np.tile(np.eye(n)[i], (len(s), 1))], axis=1)
@@ -186,13 +174,6 @@ class Actions:
         a = torch.arange(max(sizes))
         self.valid = a[None, :] < torch.tensor(sizes)[:, None]  # (N, A_max)
         self.table = torch.where(self.valid, self.start[:, None] + a[None, :], 0)
-
-
-def task_features(problem: Problem) -> torch.Tensor:
-    """(T, F) task features min-max normalised over the problem's tasks (constant features -> 0.5)."""
-    f = problem.features.astype(np.float64)
-    lo, span = f.min(axis=0), np.ptp(f, axis=0)
-    return torch.tensor(np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5), dtype=torch.float32)
 
 
 @torch.no_grad()
@@ -232,43 +213,16 @@ class VDN(Planner):
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config
         t_start = time.perf_counter()
-        # the held-out track restricts the evaluator to the training tasks; else the config chooses
-        ids = ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
-        n_train = len(ids)
-        fit = cfg.episodes if math.isinf(ev.remaining) else int(ev.remaining // n_train)
-        if fit < 1:
-            raise PlannerError(f"planner '{self.name}': budget too small: one episode needs {n_train} "
-                               f"samples, {int(ev.remaining)} available")
-        episodes = min(cfg.episodes, fit)
-
-        # seeding: everything random comes from rng (numpy) and a torch generator seeded from it (the
-        # network's initial weights); torch's global generator is neither seeded nor drawn from
-        gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
+        ids = train_split(problem, ev, cfg)
+        episodes = episodes_that_fit(self.name, cfg.episodes, ev, len(ids))
+        gen = torch_generator(rng)
         with torch_run(cfg.threads):
-                run = self._train(problem, ev, rng, ids, episodes, gen)
-
-        step_reward, step_u, step_task = map(np.array, run["record"])
-        info = {
-            "algorithm": self.name,
-            "episodes_run": episodes,
-            "budget_limited": episodes < cfg.episodes,
-            "train_tasks": ids.tolist(),
-            "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
-            "steps": len(step_reward),
-            "updates": run["updates"],
-            "step_reward": step_reward.tolist(),
-            "step_max_u": step_u.tolist(),
-            "step_task": step_task.tolist(),
-            "episode_return": step_reward.reshape(episodes, n_train).sum(axis=1).tolist(),
-            "episode_loss": run["episode_loss"],  # mean squared error of Q_tot per update, mean per episode
-            "time_setup_s": run["times"][0],  # oracle set-up before training (in no other timer)
-            "time_select_s": run["times"][1],
-            "time_oracle_s": run["times"][2],
-            "time_update_s": run["times"][3],
-            "time_greedy_s": run["times"][4],
-            "time_total_s": time.perf_counter() - t_start,
-            "torch_threads": cfg.threads or torch.get_num_threads(),  # restored: the setting outside the run
-        }
+            run = self._train(problem, ev, rng, ids, episodes, gen)
+        record = run["record"]
+        own = {"updates": run["updates"],
+               "episode_loss": run["episode_loss"]}  # mean squared error of Q_tot per update, mean per episode
+        info = learner_info(self.name, cfg, problem, ids, episodes, record,
+                            per_episode(record.arrays()[0], episodes), own, run["times"], t_start)
         return run["layouts"], info
 
     def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
@@ -276,24 +230,17 @@ class VDN(Planner):
         """The training loop and the greedy policy (the caller restores thread settings)."""
         cfg, n = self.config, problem.n_agents
         steps_total = episodes * len(ids)
-        t_setup = time.perf_counter()
-        problem.oracle.prepare()  # set-up, not training: every column now (or from the disk cache), no samples
-        t_setup = time.perf_counter() - t_setup
-        acts, feats = Actions(problem), task_features(problem)
+        # the env pays the seed's Gaussian reward; the learner's reward is its own transform of max_u
+        env, setup_s = training_env(problem, ev, ids, cfg.shuffle)
+        tm = Timings(setup=setup_s)
+        acts, feats = Actions(problem), torch.tensor(task_features(problem), dtype=torch.float32)
         q = SharedQ(feats.shape[1] + acts.rows.shape[1], cfg.hidden, cfg.layers, gen)
         opt = torch.optim.AdamW(q.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         scale = LogScale(cfg.scale_samples)
-        # the env pays the seed's Gaussian reward; the learner's reward is its own transform of max_u
-        env = FixtureEnv(problem, reward="gaussian", shuffle=cfg.shuffle, task_ids=ids, evaluator=ev)
+        replay = Replay(cfg.capacity, steps_total, n)  # ln u: rescaled at each update
         agents = env.possible_agents
 
-        cap = min(cfg.capacity, steps_total)
-        buf_task = torch.zeros(cap, dtype=torch.long)
-        buf_act = torch.zeros(cap, n, dtype=torch.long)
-        buf_logu = torch.zeros(cap, dtype=torch.float32)  # ln u: rescaled at each update
-
-        step_reward, step_u, step_task, episode_loss = [], [], [], []
-        t_select = t_oracle = t_update = 0.0
+        record, episode_loss = StepRecord(), []
         steps = updates = 0
         for _ in range(episodes):
             env.reset(seed=int(rng.integers(2**31 - 1)))
@@ -302,42 +249,34 @@ class VDN(Planner):
                 # act: per-agent epsilon-greedy; the greedy agents' argmax from one batched pass
                 t0 = time.perf_counter()
                 task = env.task
-                eps = cfg.eps_end + (cfg.eps_start - cfg.eps_end) * math.exp(-steps / (cfg.eps_decay * steps_total))
-                explore = rng.random(n) < eps
-                act = (rng.random(n) * acts.sizes).astype(np.int64)
-                if not explore.all():
-                    act = np.where(explore, act, greedy(q, acts, feats, np.array([task]))[0])
+                eps = epsilon_by_run_fraction(steps, steps_total, cfg.eps_start, cfg.eps_end, cfg.eps_decay)
+                explorers, act = explore(rng, eps, acts.sizes)
+                if not explorers.all():
+                    act = np.where(explorers, act, greedy(q, acts, feats, np.array([task]))[0])
                 t1 = time.perf_counter()
                 _, _, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
                 t2 = time.perf_counter()
 
-                # record: the scaled reward of this step, ln u into the buffer
-                u = infos[agents[0]]["max_u"]
-                log_u = math.log(u)
-                scale.add(log_u)
-                step_reward.append(float(scale.reward(log_u)))
-                step_u.append(u)
-                step_task.append(task)
-                k = steps % cap
-                buf_task[k], buf_logu[k] = task, log_u
-                buf_act[k] = torch.from_numpy(act)
+                # record: the scaled reward of this step, ln u into the replay
+                max_u = infos[agents[0]]["max_u"]
+                r, log_u = scaled_reward(scale, max_u)
+                record.add(r, max_u, task)
+                replay.add(task, act, log_u)
                 steps += 1
 
                 # learn: regress Q_tot on the shared reward (one-step episodes: no bootstrap)
-                size = min(steps, cap)
-                if size >= cfg.batch and steps % cfg.update_every == 0:
-                    idx = torch.from_numpy(rng.integers(0, size, cfg.batch))
-                    target = scale.reward(buf_logu[idx])
-                    loss = torch.mean((q_tot(q, acts, feats, buf_task[idx], buf_act[idx]) - target) ** 2)
+                if len(replay) >= cfg.batch and steps % cfg.update_every == 0:
+                    tasks, actions, log_us = replay.sample(rng, cfg.batch)
+                    loss = torch.mean((q_tot(q, acts, feats, tasks, actions) - scale.reward(log_us)) ** 2)
                     opt.zero_grad(set_to_none=False)
                     loss.backward()
                     opt.step()
                     loss_sum += loss.item()
                     n_upd += 1
                     updates += 1
-                t_select += t1 - t0
-                t_oracle += t2 - t1
-                t_update += time.perf_counter() - t2
+                tm.select += t1 - t0
+                tm.oracle += t2 - t1
+                tm.update += time.perf_counter() - t2
             episode_loss.append(loss_sum / n_upd if n_upd else None)
 
         # greedy policy on every task (training and held-out): no samples
@@ -345,7 +284,7 @@ class VDN(Planner):
         tasks = np.arange(problem.n_tasks)
         choice = np.vstack([greedy(q, acts, feats, tasks[i:i + cfg.greedy_chunk])
                             for i in range(0, len(tasks), cfg.greedy_chunk)])
-        layouts = np.column_stack([problem.action_sets[i][choice[:, i]] for i in range(n)])
-        t_greedy = time.perf_counter() - t3
-        return {"layouts": layouts, "record": (step_reward, step_u, step_task), "episode_loss": episode_loss,
-                "updates": updates, "times": (t_setup, t_select, t_oracle, t_update, t_greedy)}
+        layouts = policy_layouts(problem, choice)
+        tm.greedy = time.perf_counter() - t3
+        return {"layouts": layouts, "record": record, "episode_loss": episode_loss, "updates": updates,
+                "times": tm}

@@ -1,0 +1,282 @@
+"""What the Q-learners (``nashq``, ``iql``: solvers/nashq.py; ``vdn``: solvers/vdn.py) share.
+
+A learner plays the game of docs/protocol.md#the-game on the PettingZoo env: one episode is one pass
+over the training tasks, one env step one counted sample. Around its own network and update, every
+learner does the same things, and they live here once:
+
+- :class:`LearnerConfig`: the hyper-parameters with the same name, meaning and default in every
+  learner (a learner's config subclasses it and adds its own, ``eps_decay`` among them: its unit is
+  the learner's, see the two schedules below);
+- the split: :func:`train_split` (the held-out track's tasks, else :func:`train_ids` from the config),
+  :func:`episodes_that_fit` (the budget as whole episodes), :func:`torch_generator` (the seeding);
+- the loop's parts: :func:`training_env`, :func:`explore` and the epsilon schedules
+  (:func:`epsilon_by_step`, :func:`epsilon_by_run_fraction`), :func:`scaled_reward`, :class:`Replay`,
+  :class:`StepRecord` (and :func:`per_episode`), :class:`Timings`;
+- the inputs: :func:`task_features`, :func:`action_positions`;
+- the result: :func:`policy_layouts` and :func:`learner_info` (the ``info`` keys every learner emits,
+  among them the curves Figure 4 draws: bench/figures.py ``FIGURE4_CURVES``).
+
+docs/planners.md#write-a-learner says how a new learner uses them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from fixbench.cases.env import FixtureEnv
+from fixbench.cases.problem import Problem
+from fixbench.cases.rewards import LogScale
+from fixbench.solvers.base import PlannerConfig, PlannerError, TracedEvaluator, at_least, require
+
+
+# ---------------------------------------------------------------------------------------------
+# hyper-parameters every learner has
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LearnerConfig(PlannerConfig):
+    """The fields every learner shares (same names, same meanings, same defaults), checked here; a
+    learner's config adds its own (network, optimiser, ``eps_decay``) and checks them."""
+
+    episodes: int = 100
+    """Passes over the training tasks, one sample a training task each (seed Table I: 100)."""
+
+    eps_start: float = 0.9
+    """Initial exploration probability (per agent, independently)."""
+
+    eps_end: float = 0.05
+    """Final exploration probability."""
+
+    capacity: int = 1_000_000
+    """Replay capacity (transitions); never more is allocated than the run has steps."""
+
+    scale_samples: int = 500
+    """The scaled reward: the first samples whose ln u give its mean and spread (then frozen;
+    :class:`fixbench.cases.rewards.LogScale`)."""
+
+    shuffle: bool = False
+    """Visit the training tasks in a new random order each episode (reference: in order)."""
+
+    train_tasks: tuple[int, ...] = ()
+    """Train only on these task indices (held-out tasks get the greedy policy, no samples)."""
+
+    train_fraction: float = 1.0
+    """If train_tasks is empty: train on this fraction of tasks, evenly spaced over the task list."""
+
+    threads: int = 1
+    """torch intra-op threads during the run (0: torch's setting); restored afterwards. 1: tiny ops gain
+    nothing from more, and spinning OpenMP threads on a shared, loaded machine slowed updates 40x
+    (measured on nashq)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "episodes", "capacity")
+        at_least(self, 2, "scale_samples")
+        at_least(self, 0, "threads")
+        require(self, "eps_start", 0 <= self.eps_start <= 1, "in [0, 1]")
+        require(self, "eps_end", 0 <= self.eps_end <= 1, "in [0, 1]")
+        require(self, "train_tasks", all(t >= 0 for t in self.train_tasks), "task indices (0 or more)")
+        require(self, "train_fraction", 0 < self.train_fraction <= 1, "in (0, 1]")
+
+
+# ---------------------------------------------------------------------------------------------
+# the split: training tasks, episodes, seeding
+# ---------------------------------------------------------------------------------------------
+def train_ids(problem: Problem, cfg: LearnerConfig) -> np.ndarray:
+    """Training task indices from ``train_tasks`` or ``train_fraction`` (evenly spaced)."""
+    t = problem.n_tasks
+    if cfg.train_tasks:
+        ids = np.unique(np.asarray(cfg.train_tasks, dtype=np.int64))
+        if ids.max() >= t:
+            raise PlannerError(f"train_tasks must be in 0..{t - 1}")
+        return ids
+    k = max(1, round(cfg.train_fraction * t))
+    return np.unique(np.round(np.linspace(0, t - 1, k)).astype(np.int64))
+
+
+def train_split(problem: Problem, ev: TracedEvaluator, cfg: LearnerConfig) -> np.ndarray:
+    """The tasks a run trains on: the held-out track restricts the evaluator to its training tasks
+    (``Planner.solve(train_tasks=...)``); else the config chooses (:func:`train_ids`)."""
+    return ev.tasks.copy() if len(ev.tasks) < problem.n_tasks else train_ids(problem, cfg)
+
+
+def episodes_that_fit(name: str, episodes: int, ev: TracedEvaluator, n_train: int) -> int:
+    """Episodes to run: ``episodes``, or as many whole passes over ``n_train`` tasks as the budget pays
+    for (best effort: a remainder under one episode is left unspent); :class:`PlannerError` if not one."""
+    fit = episodes if math.isinf(ev.remaining) else int(ev.remaining // n_train)
+    if fit < 1:
+        raise PlannerError(f"planner '{name}': budget too small: one episode needs {n_train} "
+                           f"samples, {int(ev.remaining)} available")
+    return min(episodes, fit)
+
+
+def torch_generator(rng: np.random.Generator) -> torch.Generator:
+    """The torch generator of a run (the networks' initial weights), seeded from ``rng``: everything random
+    comes from ``rng``, and torch's global generator is neither seeded nor drawn from."""
+    return torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
+
+
+# ---------------------------------------------------------------------------------------------
+# the training loop's parts
+# ---------------------------------------------------------------------------------------------
+def training_env(problem: Problem, ev: TracedEvaluator, ids: np.ndarray, shuffle: bool,
+                 reward: str = "gaussian") -> tuple[FixtureEnv, float]:
+    """The env over the training tasks on the run's counted evaluator, and the seconds the oracle's
+    set-up took first (every column now, or from the disk cache; no samples; in no training timer).
+    ``reward`` is what the env pays; a learner on the scaled reward transforms the env's ``max_u``
+    itself (:func:`scaled_reward`)."""
+    t0 = time.perf_counter()
+    problem.oracle.prepare()
+    setup_s = time.perf_counter() - t0
+    return FixtureEnv(problem, reward=reward, shuffle=shuffle, task_ids=ids, evaluator=ev), setup_s
+
+
+def epsilon_by_step(step: int, start: float, end: float, decay_steps: float) -> float:
+    """Exploration probability after ``step`` env steps: end + (start - end) exp(-step / decay_steps),
+    ``decay_steps`` in env steps, the same in a run of any length (nashq, iql: ``eps_decay``)."""
+    return end + (start - end) * math.exp(-step / decay_steps)
+
+
+def epsilon_by_run_fraction(step: int, steps_total: int, start: float, end: float, decay_fraction: float) -> float:
+    """Exploration probability after ``step`` of the run's ``steps_total`` env steps:
+    end + (start - end) exp(-step / (decay_fraction steps_total)), ``decay_fraction`` a fraction of the
+    run, so that a short run exploits too (vdn: ``eps_decay``)."""
+    return epsilon_by_step(step, start, end, decay_fraction * steps_total)
+
+
+def explore(rng: np.random.Generator, eps: float, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which agents explore this step (each with probability ``eps``, independently) and a uniform random
+    action of each agent's set (``sizes``: the set sizes), for the explorers to play."""
+    explorers = rng.random(len(sizes)) < eps
+    return explorers, (rng.random(len(sizes)) * sizes).astype(np.int64)
+
+
+def scaled_reward(scale: LogScale, max_u: float) -> tuple[float, float]:
+    """One step's scaled reward (docs/protocol.md#scaled-reward) and its ln u, the value a replay keeps
+    (rescaled with the statistics of the moment at each update); ``scale`` takes ln u in first."""
+    log_u = math.log(max_u)
+    scale.add(log_u)
+    return float(scale.reward(log_u)), log_u
+
+
+class Replay:
+    """Replay of joint transitions in a ring of ``min(capacity, steps)`` slots: task, joint action (one
+    index an agent) and one stored value (the reward, or ln u for the scaled reward).
+
+    Three preallocated tensors and a modulo, by hand rather than TorchRL's ``ReplayBuffer``: its samplers
+    draw from torch's generator, and a run draws everything random from its own numpy ``rng``."""
+
+    def __init__(self, capacity: int, steps: int, n_agents: int, device: torch.device | str = "cpu"):
+        self.cap, self.device, self.added = min(capacity, steps), device, 0
+        self.task = torch.zeros(self.cap, dtype=torch.long, device=device)
+        self.act = torch.zeros(self.cap, n_agents, dtype=torch.long, device=device)
+        self.value = torch.zeros(self.cap, dtype=torch.float32, device=device)
+
+    def __len__(self) -> int:
+        return min(self.added, self.cap)
+
+    def add(self, task: int, act: np.ndarray, value: float) -> None:
+        k = self.added % self.cap
+        self.task[k], self.value[k] = task, value
+        self.act[k] = torch.from_numpy(act)
+        self.added += 1
+
+    def sample(self, rng: np.random.Generator, shape) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Transitions drawn uniformly with replacement, ``shape`` of them: (tasks, joint actions, values)."""
+        idx = torch.from_numpy(rng.integers(0, len(self), shape)).to(self.device)
+        return self.task[idx], self.act[idx], self.value[idx]
+
+
+class StepRecord:
+    """Every training step's reward (the learner's), max deformation (m) and task, in step order."""
+
+    def __init__(self):
+        self.reward, self.max_u, self.task = [], [], []
+
+    def add(self, reward: float, max_u: float, task: int) -> None:
+        self.reward.append(reward)
+        self.max_u.append(max_u)
+        self.task.append(task)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return np.array(self.reward), np.array(self.max_u), np.array(self.task)
+
+
+def per_episode(values: np.ndarray, episodes: int) -> list[float]:
+    """Sums of a per-step array over each episode (the steps of a run are ``episodes`` equal passes)."""
+    return values.reshape(episodes, -1).sum(axis=1).tolist()
+
+
+@dataclass
+class Timings:
+    """Seconds a run spent: oracle set-up, then per phase of the training steps (choosing actions, the
+    oracle's sample, recording and learning), then the greedy policy."""
+
+    setup: float = 0.0
+    select: float = 0.0
+    oracle: float = 0.0
+    update: float = 0.0
+    greedy: float = 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# inputs: tasks and actions as numbers
+# ---------------------------------------------------------------------------------------------
+def task_features(problem: Problem) -> np.ndarray:
+    """(T, F) task features min-max normalised over the problem's tasks (constant features -> 0.5)."""
+    f = problem.features.astype(np.float64)
+    lo, span = f.min(axis=0), np.ptp(f, axis=0)
+    return np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5)
+
+
+def action_positions(problem: Problem) -> np.ndarray:
+    """(options, 2 m) every option's pads' (x, y) normalised to the candidates' bounding box (an axis
+    without extent: divided by 1)."""
+    c = problem.candidates
+    cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
+    reps = problem.points.shape[1] // 2
+    return (problem.points - np.tile(cmin, reps)) / np.tile(cspan, reps)
+
+
+# ---------------------------------------------------------------------------------------------
+# the result
+# ---------------------------------------------------------------------------------------------
+def policy_layouts(problem: Problem, actions: np.ndarray) -> np.ndarray:
+    """Layouts (T, N) of the greedy policy's actions (T, N), indices into each agent's own set."""
+    return np.column_stack([problem.action_sets[i][actions[:, i]] for i in range(problem.n_agents)])
+
+
+def learner_info(name: str, cfg: LearnerConfig, problem: Problem, ids: np.ndarray, episodes: int,
+                 record: StepRecord, episode_return: list[float], own: dict[str, Any], times: Timings,
+                 t_start: float) -> dict:
+    """The ``info`` of a learner's run: the keys every learner emits, the learner's ``own`` keys among
+    them. Figure 4 draws ``step_reward``, ``step_max_u``, ``step_task`` and ``episode_return`` from these
+    (and ``episode_regret_ref`` / ``episode_regret_true`` where a learner adds them to ``own``); the
+    harness stores every numeric list as a curve (bench/cells.py). Call after :func:`torch_run` restored
+    the thread setting (``torch_threads`` reports the run's)."""
+    rew, u, task = record.arrays()
+    return {
+        "algorithm": name,
+        "episodes_run": episodes,
+        "budget_limited": episodes < cfg.episodes,
+        "train_tasks": ids.tolist(),
+        "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
+        "steps": len(rew),
+        "step_reward": rew.tolist(),
+        "step_max_u": u.tolist(),
+        "step_task": task.tolist(),
+        "episode_return": episode_return,
+        **own,
+        "time_setup_s": times.setup,  # oracle set-up before training (in no other timer)
+        "time_select_s": times.select,
+        "time_oracle_s": times.oracle,
+        "time_update_s": times.update,
+        "time_greedy_s": times.greedy,
+        "time_total_s": time.perf_counter() - t_start,
+        "torch_threads": cfg.threads or torch.get_num_threads(),  # restored: the setting outside the run
+    }
