@@ -13,6 +13,8 @@
     policy_table        the learners' second figure: their greedy policy's regret beside the incumbents'
     iqm_table           per-position regrets pooled over runs: interquartile mean with rliable's stratified
                         bootstrap (runs resampled within each position), beside the main table's means
+    headline_table      the README's headline: the best entry of each family of planners by that IQM, per
+                        case and track, and the chance the best learner's cells beat the best classical one's
 
 Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each planner's incumbent
 (the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
@@ -38,6 +40,16 @@ from fixbench.bench.tables import ci_column, fmt, setting_text
 
 #: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
 RANK_PROBLEM = ("case", "material", "seed", "agents", "n_tasks", "mode")
+
+#: the headline's families of planners (``Planner.family``), in its order, with their headings; a family
+#: not listed (a plugin's own) follows under its own name
+FAMILIES = {"marl": "MARL learners", "bandit": "bandit learners", "evolutionary": "swarm / evolutionary",
+            "local-search": "local and greedy search", "case-based": "case-based", "qp": "QP relaxation",
+            "bayesian-optimisation": "Bayesian optimisation", "rules": "rules", "random": "random"}
+#: the families that learn across positions (the seed's question: do they beat the others?)
+LEARNING = ("marl", "bandit")
+#: families outside the comparison: the reference planner
+NOT_COMPARED = ("exact",)
 
 
 # rows scored against the reference --------------------------------------------------------------------
@@ -235,12 +247,26 @@ def _in_column(scored: pd.DataFrame, case: str, mode: str | None) -> pd.Series:
     return pick
 
 
+def common_ranks(rows: pd.DataFrame) -> tuple[pd.DataFrame, int, int]:
+    """Each label's ranks (:func:`problem_ranks`) on the problems every label ran on, so that a mean
+    rank compares like with like; where no problem has them all, on every problem. Returns (ranks,
+    problems used, problems in all)."""
+    ranks = problem_ranks(rows)
+    keys = [*RANK_PROBLEM, "level"]
+    present = ranks.groupby(keys, dropna=False)["label"].transform("nunique")
+    common = ranks[present == ranks["label"].nunique()]
+    n_all = len(ranks[keys].drop_duplicates())
+    used = common if len(common) else ranks
+    return used, len(used[keys].drop_duplicates()), n_all
+
+
 def main_table(rows: pd.DataFrame) -> pd.DataFrame:
     """The README's main table: one line a planner label with the mean relative regret (%) on each
     case, and mode when the run has several (columns ``<name>``, ``<name>_lo``, ``<name>_hi``: 95 % CI
-    over its successful cells, all budgets of the run) and the mean rank over problems
-    (:func:`problem_ranks`), sorted by it."""
-    ranks = problem_ranks(rows).groupby("label")["rank"].agg(["mean", "size"])
+    over its successful cells, all budgets of the run) and the mean rank over the problems every label
+    ran on (:func:`common_ranks`; ``attrs["ranked_on"]``: (problems used, problems in all)), sorted by it."""
+    used, n_used, n_all = common_ranks(rows)
+    ranks = used.groupby("label")["rank"].agg(["mean", "size"])
     scored = _scored(rows)
     recs = []
     for label in sorted(rows["label"].unique()):
@@ -249,10 +275,14 @@ def main_table(rows: pd.DataFrame) -> pd.DataFrame:
             pick = (scored["label"] == label) & _in_column(scored, case, mode)
             p, lo, hi = mean_ci(scored.loc[pick, "regret_pct"])
             rec.update({name: p, f"{name}_lo": lo, f"{name}_hi": hi})
-        rec.update(mean_rank=float(ranks.loc[label, "mean"]), problems=int(ranks.loc[label, "size"]))
+        ranked = label in ranks.index
+        rec.update(mean_rank=float(ranks.loc[label, "mean"]) if ranked else math.nan,
+                   problems=int(ranks.loc[label, "size"]) if ranked else 0)
         recs.append(rec)
     df = pd.DataFrame(recs)
-    return df.sort_values(["mean_rank", "planner"], kind="stable").reset_index(drop=True)
+    df = df.sort_values(["mean_rank", "planner"], kind="stable", na_position="last").reset_index(drop=True)
+    df.attrs["ranked_on"] = (n_used, n_all)
+    return df
 
 
 def show_main(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
@@ -378,4 +408,54 @@ def show_versus_best(table: pd.DataFrame, columns: Sequence[str]) -> pd.DataFram
     for name in columns:
         out[name] = [f"{t} ({c})" for t, c in zip(ci_column(table, name), table[f"{name}_cells"])]
     return out
+
+
+def headline_table(rows: pd.DataFrame, iq: pd.DataFrame, family_of: dict[str, str]) -> pd.DataFrame:
+    """The README's headline, from the IQM table (:func:`iqm_table`): for each main-table column of a
+    per-task or held-out track and each family of planners (``family_of``: planner name -> family), the
+    family's best entry (label) by the IQM of its per-position regret, with the IQM's interval; and per
+    column rliable's probability that a cell of the best learning entry (families :data:`LEARNING`) ends
+    with a lower regret than a cell of the best other entry (``family`` "P(learner < classical)": the
+    two labels in ``entry``). Long form: one line a (family, column)."""
+    planner = rows.drop_duplicates("label").set_index("label")["planner"]
+    fam = {label: family_of.get(str(name), "other") for label, name in planner.items()}
+    families = [f for f in FAMILIES if f in fam.values()]
+    families += sorted({f for f in fam.values() if f not in FAMILIES and f not in NOT_COMPARED})
+    columns = {name: (case, mode) for name, case, mode in main_columns(rows)}
+    scored = _scored(rows)
+    recs = []
+    for name in [c for c in iq.columns if c in columns]:
+        values = iq.set_index("planner")[[name, f"{name}_lo", f"{name}_hi"]].dropna()
+        best = {}
+        for f in families:
+            mine = values[values.index.map(fam.get) == f]
+            if len(mine):
+                label = mine[name].idxmin()
+                best[f] = label
+                recs.append({"family": f, "column": name, "entry": label, "iqm": mine.loc[label, name],
+                             "iqm_lo": mine.loc[label, f"{name}_lo"], "iqm_hi": mine.loc[label, f"{name}_hi"]})
+        learners = [best[f] for f in LEARNING if f in best]
+        others = [best[f] for f in families if f not in LEARNING and f in best]
+        if learners and others:
+            x_label = min(learners, key=lambda b: values.loc[b, name])
+            y_label = min(others, key=lambda b: values.loc[b, name])
+            pick = _in_column(scored, *columns[name])
+            x = scored.loc[pick & (scored["label"] == x_label), "regret_pct"]
+            y = scored.loc[pick & (scored["label"] == y_label), "regret_pct"]
+            p, lo, hi = probability_of_improvement(x, y)
+            recs.append({"family": "P(learner < classical)", "column": name, "entry": f"{x_label} vs {y_label}",
+                         "iqm": p, "iqm_lo": lo, "iqm_hi": hi})
+    return pd.DataFrame(recs, columns=["family", "column", "entry", "iqm", "iqm_lo", "iqm_hi"])
+
+
+def show_headline(table: pd.DataFrame) -> pd.DataFrame:
+    """The headline formatted: a line a family (its heading), a column a case and track, each cell the best
+    entry and ``IQM [lo, hi]``; the last line the probability of improvement and the two entries."""
+    text = table.assign(cell=[f"{e}: {t}" for e, t in zip(table["entry"], ci_column(table, "iqm"))])
+    wide = text.pivot(index="family", columns="column", values="cell")
+    order = list(dict.fromkeys(table["family"]))
+    wide = wide.reindex(index=[f for f in order if f != "P(learner < classical)"] + ["P(learner < classical)"],
+                        columns=list(dict.fromkeys(table["column"]))).fillna("-")
+    wide.index = [FAMILIES.get(f, f) for f in wide.index]
+    return wide.rename_axis("best of each family").reset_index()
 

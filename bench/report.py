@@ -39,12 +39,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from fixbench.bench.comparison import (  # noqa: E402
+    headline_table,
     heldout_table,
     improvement_table,
     iqm_table,
     main_columns,
     main_table,
     policy_table,
+    show_headline,
     show_heldout,
     show_improvement,
     show_iqm,
@@ -82,6 +84,7 @@ from fixbench.bench.tables import (  # noqa: E402
     summary_table,
 )
 from fixbench.cases.references import check_sources  # noqa: E402
+from fixbench.solvers.registry import listing  # noqa: E402
 
 LEARNER_CURVES = ("episode_return", "step_reward")
 
@@ -175,6 +178,9 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
         w.skip("Main table", "no successful cells")
         return
     table = main_table(rows)
+    n_used, n_all = table.attrs["ranked_on"]
+    on = (f"all {n_all} problems (no problem has every planner)" if not table["problems"].eq(n_used).all()
+          else f"the {n_used} of {n_all} problems every planner ran on")
     w.table("main", table, show_main(table, [name for name, _, _ in main_columns(rows)]),
             "Main table: relative regret against the reference (%, mean over every successful cell of the "
             "planner on the case (and mode, when the run has several; held-out cells are scored on the "
@@ -182,9 +188,9 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
             "scoring rule a track, every planner alike: per-task and shared cells by the planner's "
             "incumbent, the best layout it evaluated on each task, held-out cells by the layouts it returns "
             "on the held-out tasks, with zero samples there; a learner's policy is in the next table) and "
-            "the mean rank over problems (case x material x seed x agents x tasks x mode x budget or samples "
-            "a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its own "
-            "budget competes at every budget); sorted by mean rank.")
+            f"the mean rank over {on} (a problem: case x material x seed x agents x tasks x mode x budget or "
+            "samples a task; rank 1 = lowest max deformation, failed cells last, ties share; a planner with its "
+            "own budget competes at every budget); sorted by mean rank.")
     policy = policy_table(rows)
     if not policy.empty:
         w.table("policy", policy, show_policy(policy),
@@ -237,6 +243,14 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
                 f"bootstrap CI ({N_BOOT} resamples, fixed seed; the runs are resampled within each position), "
                 "and the mean of the same per-position regrets. The main table's regret is that of the mean "
                 "deformation; the IQM leaves out the best and worst quarter of (run, position) pairs.")
+        head = headline_table(rows, iq, {r["planner"]: r["family"] for r in listing()})
+        if len(head):
+            w.table("headline", head, show_headline(head),
+                    "Headline: for each family of planners, its best entry on each case and track by the "
+                    "interquartile mean of the per-position relative regret (%, the IQM table's, with its 95 % "
+                    "stratified-bootstrap CI); last line: rliable's probability that a cell of the best learning "
+                    "entry (MARL or bandit learners) ends with a lower relative regret than a cell of the best "
+                    "other entry, with its 95 % CI (the two entries named).")
     group = group_keys(rows)[1:]
     imp = improvement_table(rows, group)
     if imp.empty:

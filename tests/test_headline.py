@@ -1,0 +1,63 @@
+"""The README's headline (best entry of each family, learners against the rest) and ranks over the
+problems every entry ran on, on the committed results/tiny (random, greedy, local on fan_small)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixbench.bench.comparison import (
+    _scored,
+    common_ranks,
+    headline_table,
+    iqm_table,
+    main_table,
+    show_headline,
+)
+from fixbench.bench.merge import load_runs
+from fixbench.bench.stats import probability_of_improvement
+
+#: greedy stands in for a learner, so that the last line has two sides
+FAMILY = {"random": "random", "greedy": "marl", "local": "local-search"}
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    runs = load_runs(["results/tiny"])
+    return runs.rows, runs.refs
+
+
+def test_headline_takes_each_familys_best_and_compares_learner_with_the_rest(tiny):
+    rows, refs = tiny
+    iq = iqm_table(rows, refs)
+    head = headline_table(rows, iq, FAMILY)
+    column = "fan_small"
+    families = head[head["family"] != "P(learner < classical)"]
+    assert list(families["family"]) == ["marl", "local-search", "random"]  # the headline's order
+    for _, line in families.iterrows():
+        mine = iq[iq["planner"].map(FAMILY) == line["family"]]
+        assert line["entry"] == mine.loc[mine[column].idxmin(), "planner"]
+        assert line["iqm"] == pytest.approx(mine[column].min())
+    p = head[head["family"] == "P(learner < classical)"].iloc[0]
+    others = iq[iq["planner"] != "greedy"]
+    best_other = others.loc[others[column].idxmin(), "planner"]
+    assert p["entry"] == f"greedy vs {best_other}"  # the best learner against the best of the other families
+    scored = _scored(rows)
+    want = probability_of_improvement(scored.loc[scored["label"] == "greedy", "regret_pct"],
+                                      scored.loc[scored["label"] == best_other, "regret_pct"])
+    assert (p["iqm"], p["iqm_lo"], p["iqm_hi"]) == pytest.approx(want)
+    shown = show_headline(head)
+    assert list(shown.iloc[:, 0]) == ["MARL learners", "local and greedy search", "random", "P(learner < classical)"]
+
+
+def test_ranks_use_only_the_problems_every_entry_ran_on(tiny):
+    rows, _ = tiny
+    full = main_table(rows)
+    assert full.attrs["ranked_on"] == (2, 2) and (full["problems"] == 2).all()
+    # drop one seed of one planner: that seed's problem leaves every entry's rank
+    gone = rows[~((rows["label"] == "local") & (rows["seed"] == 1))]
+    part = main_table(gone)
+    assert part.attrs["ranked_on"] == (1, 2) and (part["problems"] == 1).all()
+    used, n_used, n_all = common_ranks(gone)
+    assert (n_used, n_all) == (1, 2) and set(used["seed"]) == {0}
+    assert np.isclose(part.set_index("planner")["mean_rank"].sum(), 6)  # 1 + 2 + 3 on the one problem left
