@@ -1,0 +1,95 @@
+"""Certified lower bounds (solvers/bound.py): every node's bound is at most every completion's value,
+and branch-and-bound run to the end finds exact's proven optimum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixbench.cases.problem import decode_layouts, load_problem
+from fixbench.cases.spec import case_names, load_case_spec
+from fixbench.solvers import get
+from fixbench.solvers.bound import BoundConfig, ComplianceBound, lower_bound
+
+POINTS = ("points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]",
+          "points_mm = [[100, 50], [100, 150], [150, 100], [200, 50], [200, 150], [250, 100], "
+          "[300, 50], [300, 150], [350, 150], [350, 50]]")
+SMALL = [n for n in case_names() if n.endswith("_small")]
+#: the bus panel's oracle set-up takes about a minute (as in tests/test_small_cases.py); the shared
+#: pads case keeps its 4 robots (its pad limit is what makes it): 390,625 layouts a task
+SLOW = {"bus_panel_small", "wing_panel_pads_small"}
+#: robots per small case here: two keep enumeration and the search to the end at a second or so
+AGENTS = 2
+#: no time limit in these tests: the search runs to the end ...
+#: ... and on the tiny case branches down to single layouts (no subtree closed by enumeration)
+BRANCHING = BoundConfig(time_limit_s=1e9, enumerate_max=1)
+
+
+@pytest.fixture(scope="module", params=["one pad a robot", "pad limit"])
+def tiny(request, tmp_path_factory):
+    """10 candidates, 3 agents (4 x 3 x 3 = 36 layouts), 3 drilling tasks, both fields loaded; or the
+    same robots each free to idle, sharing 2 pads (5 x 4 x 4 = 80 layouts)."""
+    from conftest import PLATE
+
+    agents = "count = 3" + ("\nidle = true\npads = 2" if request.param == "pad limit" else "")
+    path = tmp_path_factory.mktemp("bound") / "tiny.toml"
+    path.write_text(PLATE.replace(*POINTS).replace("count = 2", agents))
+    return load_problem(str(path))
+
+
+def values(problem, task):
+    """Every layout of the joint space and its max |u| on the oracle."""
+    layouts = decode_layouts(problem.action_sets, 0, problem.joint_size)
+    return layouts, problem.measure(task, layouts)[:, 3]
+
+
+def test_every_node_bound_is_at_most_every_completion(tiny):
+    bounder = ComplianceBound(tiny)
+    positive = 0
+    for task in range(tiny.n_tasks):
+        layouts, u = values(tiny, task)
+        for depth in range(tiny.n_agents + 1):
+            for prefix in np.unique(layouts[:, :depth], axis=0):
+                below = (layouts[:, :depth] == prefix).all(axis=1)
+                b = bounder.node(task, dict(enumerate(prefix.tolist())))
+                assert 0 <= b <= u[below].min(), (task, prefix, b, u[below].min())
+                positive += b > 0
+    assert positive > 0  # the bound says something somewhere
+
+
+def test_branch_and_bound_to_the_end_finds_the_optimum(tiny):
+    bounder = ComplianceBound(tiny)
+    for task in range(tiny.n_tasks):
+        layouts, u = values(tiny, task)
+        r = lower_bound(tiny, task, BRANCHING, bounder)
+        assert r.nodes > 1
+        assert r.proven and r.bound == r.best == u.min()
+        assert r.root_bound <= r.bound and r.gap == 0.0
+        assert tiny.measure(task, r.layout[None])[0, 3] == r.best
+
+
+def test_a_time_limit_leaves_a_valid_bound(tiny):
+    _, u = values(tiny, 0)
+    r = lower_bound(tiny, 0, BoundConfig(time_limit_s=1e-9))
+    assert not r.proven and 0 <= r.bound <= u.min()
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c for c in SMALL])
+def test_small_cases_bound_at_most_exacts_optimum(case):
+    problem = load_problem(case, agents=None if load_case_spec(case).effector.pads else AGENTS)
+    exact = get("exact")().solve(problem, budget=problem.joint_size * problem.n_tasks)
+    assert exact.info["method"] == "enumeration" and exact.info["proven"]
+    bounder = ComplianceBound(problem)
+    # the root's children are bounded, and each is closed by enumerating its completions
+    one_level = BoundConfig(time_limit_s=1e9, enumerate_max=max(len(a) for a in problem.action_sets))
+    for task in range(problem.n_tasks):
+        r = lower_bound(problem, task, one_level, bounder)
+        assert r.root_bound <= exact.max_deformation[task]
+        assert r.proven and r.best == pytest.approx(exact.max_deformation[task], rel=1e-12)
+
+
+@pytest.mark.parametrize("bad", [dict(time_limit_s=0), dict(safety=1), dict(enumerate_max=0), dict(scale_points=0),
+                                 dict(scale_span=0.5)])
+def test_config_is_checked(bad):
+    with pytest.raises(ValueError, match="BoundConfig"):
+        BoundConfig(**bad)
