@@ -1,12 +1,14 @@
-"""What the Q-learners (``nashq``, ``iql``: solvers/nashq.py; ``vdn``: solvers/vdn.py) share.
+"""What the learners (``nashq``, ``iql``: solvers/nashq.py; ``vdn``: solvers/vdn.py; ``mappo``, ``ippo`` in
+part: solvers/library_learners.py) share.
 
 A learner plays the game of docs/protocol.md#the-game on the PettingZoo env: one episode is one pass
 over the training tasks, one env step one counted sample. Around its own network and update, every
 learner does the same things, and they live here once:
 
 - :class:`LearnerConfig`: the hyper-parameters with the same name, meaning and default in every
-  learner (a learner's config subclasses it and adds its own, ``eps_decay`` among them: its unit is
-  the learner's, see the two schedules below);
+  learner (``mappo``/``ippo`` too: solvers/library_learners.py), and :class:`QLearnerConfig`, what the
+  Q-learners add (exploration, replay); a learner's config subclasses one and adds its own,
+  ``eps_decay`` among them: its unit is the learner's, see the two schedules below;
 - the split: :func:`train_split` (the held-out track's tasks, else :func:`train_ids` from the config),
   :func:`episodes_that_fit` (the budget as whole episodes), :func:`torch_generator` (the seeding);
 - the loop's parts: :func:`training_env`, :func:`explore` and the epsilon schedules
@@ -41,19 +43,10 @@ from fixbench.solvers.base import PlannerConfig, PlannerError, TracedEvaluator, 
 @dataclass(frozen=True)
 class LearnerConfig(PlannerConfig):
     """The fields every learner shares (same names, same meanings, same defaults), checked here; a
-    learner's config adds its own (network, optimiser, ``eps_decay``) and checks them."""
+    learner's config adds its own (network, optimiser, exploration) and checks them."""
 
     episodes: int = 100
     """Passes over the training tasks, one sample a training task each (seed Table I: 100)."""
-
-    eps_start: float = 0.9
-    """Initial exploration probability (per agent, independently)."""
-
-    eps_end: float = 0.05
-    """Final exploration probability."""
-
-    capacity: int = 1_000_000
-    """Replay capacity (transitions); never more is allocated than the run has steps."""
 
     scale_samples: int = 500
     """The scaled reward: the first samples whose ln u give its mean and spread (then frozen;
@@ -63,7 +56,7 @@ class LearnerConfig(PlannerConfig):
     """Visit the training tasks in a new random order each episode (reference: in order)."""
 
     train_tasks: tuple[int, ...] = ()
-    """Train only on these task indices (held-out tasks get the greedy policy, no samples)."""
+    """Train only on these task indices (held-out tasks get the learned policy's layouts, no samples)."""
 
     train_fraction: float = 1.0
     """If train_tasks is empty: train on this fraction of tasks, evenly spaced over the task list."""
@@ -75,13 +68,32 @@ class LearnerConfig(PlannerConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        at_least(self, 1, "episodes", "capacity")
+        at_least(self, 1, "episodes")
         at_least(self, 2, "scale_samples")
         at_least(self, 0, "threads")
-        require(self, "eps_start", 0 <= self.eps_start <= 1, "in [0, 1]")
-        require(self, "eps_end", 0 <= self.eps_end <= 1, "in [0, 1]")
         require(self, "train_tasks", all(t >= 0 for t in self.train_tasks), "task indices (0 or more)")
         require(self, "train_fraction", 0 < self.train_fraction <= 1, "in (0, 1]")
+
+
+@dataclass(frozen=True)
+class QLearnerConfig(LearnerConfig):
+    """What the Q-learners add: epsilon-greedy exploration and a replay buffer (``eps_decay`` is each
+    learner's own: its unit is the learner's, see the two schedules below)."""
+
+    eps_start: float = 0.9
+    """Initial exploration probability (per agent, independently)."""
+
+    eps_end: float = 0.05
+    """Final exploration probability."""
+
+    capacity: int = 1_000_000
+    """Replay capacity (transitions); never more is allocated than the run has steps."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        at_least(self, 1, "capacity")
+        require(self, "eps_start", 0 <= self.eps_start <= 1, "in [0, 1]")
+        require(self, "eps_end", 0 <= self.eps_end <= 1, "in [0, 1]")
 
 
 # ---------------------------------------------------------------------------------------------

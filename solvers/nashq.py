@@ -62,7 +62,7 @@ from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
 from fixbench.solvers.base import Planner, PlannerError, TracedEvaluator, at_least, require
 from fixbench.solvers.learners import (
-    LearnerConfig,
+    QLearnerConfig,
     Replay,
     StepRecord,
     Timings,
@@ -86,10 +86,10 @@ REWARDS = ("scaled", "gaussian", "bell")
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters (and those every learner has: fixbench.solvers.learners.LearnerConfig)
+# hyper-parameters (and those every Q-learner has: fixbench.solvers.learners.QLearnerConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class NashQConfig(LearnerConfig):
+class NashQConfig(QLearnerConfig):
     tunable: ClassVar[dict[str, tuple]] = {
         "lr": ("log", 1e-05, 0.001),
         "eps_decay": ("log", 100.0, 10000.0),

@@ -30,6 +30,7 @@ BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solver
            "optuna": "fixbench.solvers.optuna_tpe", "rules": "fixbench.solvers.rules",
            "surrogate-ts": "fixbench.solvers.surrogate",
            "vdn": "fixbench.solvers.vdn",
+           "mappo": "fixbench.solvers.library_learners", "ippo": "fixbench.solvers.library_learners",
            "gp-ucb": "fixbench.solvers.gp_bandit"}
 _REGISTRY: dict[str, type[Planner]] = {}
 

@@ -59,7 +59,7 @@ from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
 from fixbench.solvers.base import Planner, TracedEvaluator, at_least, require
 from fixbench.solvers.learners import (
-    LearnerConfig,
+    QLearnerConfig,
     Replay,
     StepRecord,
     Timings,
@@ -81,10 +81,10 @@ from fixbench.solvers.torch_run import torch_run
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters (and those every learner has: fixbench.solvers.learners.LearnerConfig)
+# hyper-parameters (and those every Q-learner has: fixbench.solvers.learners.QLearnerConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class VDNConfig(LearnerConfig):
+class VDNConfig(QLearnerConfig):
     tunable: ClassVar[dict[str, tuple]] = {
         "lr": ("log", 3e-4, 1e-2),
         "eps_decay": ("log", 0.05, 0.5),

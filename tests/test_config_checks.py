@@ -25,6 +25,7 @@ BAD = [
     ("greedy", "restarts", 0), ("greedy", "soft_power", -1.0),
     ("iql", "reward", "fancy"), ("iql", "train_fraction", 0.0),
     ("local", "start_share", 2.0), ("local", "neighbours", 0),
+    ("mappo", "clip_epsilon", 1.0), ("ippo", "batch_episodes", 0),
     ("nashq", "scale_samples", 1), ("nashq", "device", "tpu"), ("nashq", "train_tasks", (0, -1)),
     ("optuna", "stall_asks", 0),
     ("pso", "max_velocity_rate", 0.0), ("pso", "pop_size", 1),

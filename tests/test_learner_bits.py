@@ -19,6 +19,7 @@ from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError, TracedEvaluator
 from fixbench.solvers.learners import (
     LearnerConfig,
+    QLearnerConfig,
     Replay,
     episodes_that_fit,
     epsilon_by_run_fraction,
@@ -27,6 +28,7 @@ from fixbench.solvers.learners import (
     train_ids,
     train_split,
 )
+from fixbench.solvers.library_learners import PPOConfig
 from fixbench.solvers.marl_engine import Learner
 from fixbench.solvers.nashq import NashQConfig
 from fixbench.solvers.registry import get
@@ -60,7 +62,8 @@ def small():
 def test_config_fields_and_defaults_are_those_committed_runs_hash():
     assert {f.name: getattr(NashQConfig(), f.name) for f in fields(NashQConfig)} == NASHQ_DEFAULTS
     assert {f.name: getattr(VDNConfig(), f.name) for f in fields(VDNConfig)} == VDN_DEFAULTS
-    shared = {f.name for f in fields(LearnerConfig)}
+    shared = {f.name for f in fields(QLearnerConfig)}
+    assert {f.name for f in fields(LearnerConfig)} <= {f.name for f in fields(PPOConfig)}
     assert shared <= set(NASHQ_DEFAULTS) & set(VDN_DEFAULTS)
     assert all(NASHQ_DEFAULTS[k] == VDN_DEFAULTS[k] for k in shared)
     # the hash covers every field by name, whatever the order the base class puts them in
