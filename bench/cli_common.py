@@ -1,8 +1,8 @@
 """What every fixbench command line shares: strict JSON output and one way to run a click command.
 
 :mod:`fixbench.bench.cli` (the ``fixbench`` command), :mod:`fixbench.bench.references` and the
-studies of :mod:`fixbench.bench.studies` run their click commands through :func:`run_command`, so a
-user error reads the same everywhere. This module imports no other module of fixbench.bench, so
+repository's studies (``studies/``, not installed) run their click commands through :func:`run_command`,
+so a user error reads the same everywhere. This module imports no other module of fixbench.bench, so
 that any of them can import it.
 """
 

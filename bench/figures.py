@@ -225,7 +225,7 @@ def figure4(runs: dict[str, list[dict]], colors: dict):
 
 def figure4_panels(runs: dict[str, list[dict]], colors: dict) -> list:
     """Seed Figure 4 as four figures, one a panel: (a), (b), (c) with both regrets, (d) (the files of
-    ``python -m fixbench.bench.studies.marl``); see :func:`draw_figure4`."""
+    ``python -m studies.marl``); see :func:`draw_figure4`."""
     (fig_a, ax_a), (fig_b, ax_b) = plt.subplots(figsize=(7, 4)), plt.subplots(figsize=(7, 4))
     fig_c, (ax_c, ax_c2) = plt.subplots(1, 2, figsize=(11, 4))
     fig_d, ax_d = plt.subplots(figsize=(7, 4))

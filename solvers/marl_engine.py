@@ -3,7 +3,7 @@ and compiled best-response kernels. The algorithm (hyper-parameters, training lo
 reads top to bottom in ``solvers/nashq.py``; this module only makes it fast, with every shortcut
 tested against the plain computation it replaces (``tests/test_nashq.py``).
 
-Speed (``python -m fixbench.bench.studies.marl speed``; times per phase in the planner's ``info``): the N
+Speed (``python -m studies.marl speed``; times per phase in the planner's ``info``): the N
 networks are one batched module with all weights in one flat vector; the update computes only the
 chosen actions' outputs, back-propagates by hand into a persistent gradient buffer (tested against
 autograd) and runs clip + AdamW + soft target update as one fused numba pass (tested against torch's

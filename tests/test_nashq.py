@@ -141,7 +141,7 @@ def test_bad_device(problem):
 
 
 def test_figure4_panels(problem, tmp_path):
-    from fixbench.bench.studies.marl import figure4
+    from studies.marl import figure4
 
     r = get("iql")(**SMALL).solve(problem, None, seed=0)
     paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
@@ -207,28 +207,45 @@ def test_best_response_cycle_shortcut_gives_the_same_actions():
 
 
 def test_heldout_benchmark_rows():
-    """studies.marl.heldout: the learner's held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
-    from fixbench.bench.studies.marl import heldout
+    """studies.marl.heldout: the held-out track's split (train on tasks 0, k, 2k, ...), the learner's
+    held-out layouts cost nothing; baselines pay per task; gaps >= 0."""
+    from studies.marl import heldout
 
-    rows = heldout("wing_spar_small", "nashq", fraction=0.4, episodes=2, per_task=(1, 3), baselines=("random",),
+    rows = heldout("wing_spar_small", "nashq", every=2, episodes=2, per_task=(1, 3), baselines=("random",),
                    hidden=16)
     learner, *base = rows
-    assert learner["train_tasks"] + learner["held_out_tasks"] == 3 and learner["held_out_tasks"] >= 1
+    assert (learner["train_tasks"], learner["held_out_tasks"]) == (2, 1)  # tasks 0 and 2 of 3; task 1 held out
     assert learner["samples_per_held_out_task"] == 0 and learner["samples"] == 2 * learner["train_tasks"]
     assert [r["samples"] for r in base] == [learner["held_out_tasks"] * b for b in (1, 3)]
     assert all(r["gap_to_best_found_pct"] >= 0 for r in rows)
 
 
 def test_update_floor_times_the_updates_own_products():
-    """fixbench.bench.studies.marl floor: the products it times do the floating-point work torch counts in a real
-    update, and the lower bound it derives lies below what the update costs on the same machine."""
-    from fixbench.bench.studies.marl import update_floor
+    """studies.marl floor: the products it times do the floating-point work torch counts in a real update,
+    the lower bound it derives lies below what the update costs on the same machine, and the thread
+    counts it sets are the caller's again afterwards."""
+    import numba
 
-    r = update_floor("wing_panel_small", repeat=5)
+    from studies.marl import update_floor
+
+    before = torch.get_num_threads(), numba.get_num_threads()
+    r = update_floor("wing_panel_small", threads=2 if before[0] == 1 else 1, repeat=5)
+    assert (torch.get_num_threads(), numba.get_num_threads()) == before
+    assert r["threads"] != before[0]
     assert r["bmm_gflop"] == r["products_gflop"] > 0
     assert r["protocol_updates"] == 4 * 100
     assert 0 < r["floor_updates_s"] <= r["updates_s_at_this_rate"]
     assert r["adamw_mb"] == 11 * 4 * r["params"] / 1e6
+
+
+def test_studies_take_only_the_learners_with_the_seed_reward(capsys):
+    """studies.marl runs the seed's protocol (Gaussian reward, a device): a learner without them is a
+    usage error (one line, exit code 2), not a traceback after the oracle's set-up."""
+    from studies.marl import main
+
+    assert main(["speed", "--planner", "vdn"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "'vdn' is not one of 'nashq', 'iql'" in err
 
 
 def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):

@@ -31,8 +31,9 @@ def test_wheel_has_one_top_level_package_and_its_data(wheel):
     for needed in ("fixbench/__main__.py", "fixbench/cases/catalog/wing_panel.toml",
                    "fixbench/cases/catalog/references/wing_panel__aluminium__a5.json",
                    "fixbench/bench/matrices/default.toml", "fixbench/bench/matrices/paper.toml",
-                   "fixbench/bench/cli_common.py", "fixbench/bench/studies/marl.py"):
+                   "fixbench/bench/cli_common.py"):
         assert needed in names, needed
+    assert not [n for n in names if "studies" in n.split("/")], "studies/ are the repository's scripts, not the package"
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))
     text = zipfile.ZipFile(wheel).read(meta).decode()

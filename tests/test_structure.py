@@ -1,4 +1,5 @@
-"""The import structure of fixbench: no circle, and dependencies point bench -> solvers -> cases.
+"""The import structure of fixbench: no circle, and dependencies point studies -> bench -> solvers -> cases
+(studies/: the repository's scripts, not installed, on top of the library).
 
 Every ``import`` of a fixbench module counts, wherever it is written (module level, inside a
 function, under ``TYPE_CHECKING``): a lazy import still ties the two modules together.
@@ -13,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
-#: the layers, lowest first: a module may import its own layer and the ones before it
-LAYERS = ("fixbench.cases", "fixbench.solvers", "fixbench.bench")
-STUDIES = "fixbench.bench.studies"
+#: the layers, lowest first: a module may import its own layer and the ones before it; the studies
+#: (folder studies/, not installed) import the library as any user code does
+LAYERS = ("fixbench.cases", "fixbench.solvers", "fixbench.bench", "studies")
+STUDIES = "studies"
 
 
 def modules(packages: dict[str, Path]) -> dict[str, Path]:
@@ -77,7 +79,8 @@ def test_the_graph_sees_every_kind_of_import(graph):
     assert len(graph) > 60
     assert "fixbench.bench.cli_common" in graph["fixbench.bench.cli"]
     assert "fixbench.bench.runner" in graph["fixbench.bench.cli"]  # inside the `run` command
-    assert "fixbench.solvers" in graph["fixbench.bench.studies.small_benchmark"]  # `from fixbench.solvers import get`
+    assert "fixbench.solvers" in graph["studies.small_benchmark"]  # `from fixbench.solvers import get`
+    assert "studies.marl" in graph["studies.gpu_check"]
 
 
 def test_no_import_circle(graph):
@@ -89,8 +92,9 @@ def test_dependencies_point_bench_solvers_cases(graph):
     assert not wrong, "; ".join(wrong)
 
 
-def test_the_harness_does_not_import_its_studies_nor_the_cli(graph):
-    """Studies and the ``fixbench`` command sit on top: nothing else in the library imports them."""
+def test_the_library_does_not_import_the_studies_nor_the_cli(graph):
+    """The studies (not installed) and the ``fixbench`` command sit on top: nothing in the library
+    imports them."""
     wrong = sorted(f"{a} imports {b}" for a, deps in graph.items() for b in deps
                    if (b.startswith(STUDIES) and not a.startswith(STUDIES)) or b == "fixbench.bench.cli")
     assert not wrong, "; ".join(wrong)

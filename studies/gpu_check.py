@@ -1,9 +1,9 @@
 """One command for a machine with a GPU: the published protocol on CUDA beside the CPU, same seeds.
 
-    python -m fixbench.bench.studies.gpu_check [--case wing_panel] [--planner nashq] [--seeds 0,1] [--threads 2]
-                              [--episodes 100] [--json]
+    python -m studies.gpu_check [--case wing_panel] [--planner nashq|iql] [--seeds 0,1] [--threads 2]
+                                [--episodes 100] [--json]
 
-For each seed it runs ``python -m fixbench.bench.studies.marl speed`` once with ``--device cuda`` and once on the
+For each seed it runs ``python -m studies.marl speed`` once with ``--device cuda`` and once on the
 CPU (``--threads``), each in a fresh process (the oracle set-up is shared through the disk cache and
 kept out of the times), and prints per device: wall time of training and its split (oracle,
 selection, updates), the greedy policy's mean max deformation and the mean return of the last ten
@@ -18,26 +18,31 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import click
 import numpy as np
 
 from fixbench.bench.cli_common import run_command
+from studies.marl import PLANNER_HELP, SEED_LEARNERS
+
+#: the repository root, where ``python -m studies.marl`` finds the studies
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(case: str, planner: str, seed: int, episodes: int, device: str, threads: int) -> dict:
-    cmd = [sys.executable, "-m", "fixbench.bench.studies.marl", "speed", "--case", case, "--planner", planner,
+    cmd = [sys.executable, "-m", "studies.marl", "speed", "--case", case, "--planner", planner,
            "--seed", str(seed), "--episodes", str(episodes), "--device", device, "--threads", str(threads), "--json"]
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=ROOT).stdout
     return json.loads(out)
 
 
-PROG = "python -m fixbench.bench.studies.gpu_check"
+PROG = "python -m studies.gpu_check"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--case", default="wing_panel", show_default=True)
-@click.option("--planner", default="nashq", show_default=True)
+@click.option("--planner", type=click.Choice(SEED_LEARNERS), default="nashq", show_default=True, help=PLANNER_HELP)
 @click.option("--seeds", default="0,1", show_default=True)
 @click.option("--episodes", type=int, default=100, show_default=True)
 @click.option("--threads", type=int, default=2, show_default=True, help="torch threads of the CPU runs")

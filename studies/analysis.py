@@ -1,7 +1,7 @@
 """The committed analyses of ``results/analysis/``: the seed's Figure 3, the equilibrium landscape
 of the small cases and the number of robots a job needs, with their tables.
 
-    python -m fixbench.bench.studies.analysis [--out results/analysis] [--readme docs/equilibria.md]
+    python -m studies.analysis [--out results/analysis] [--readme docs/equilibria.md]
         [--only equilibria|robots] [--starts 10000] [--seed 0] [--tolerance-um 50] [--fraction 0.75]
 
 Writes to OUT:
@@ -156,7 +156,7 @@ def _short(answer: dict) -> str:
     return str(answer["agents"]) if answer["proven"] else f"<= {answer['agents']}"
 
 
-PROG = "python -m fixbench.bench.studies.analysis"
+PROG = "python -m studies.analysis"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})

@@ -1,6 +1,6 @@
 """Start-up time of the everyday commands, as whole processes, side by side with a baseline.
 
-    python -m fixbench.bench.studies.startup [--runs 7] [--baseline "python /old/checkout/fixbench-cli.py"] [--json]
+    python -m studies.startup [--runs 7] [--baseline "python /old/checkout/fixbench-cli.py"] [--json]
 
 Runs ``fixbench --help``, ``fixbench cases`` and ``fixbench solvers`` (through ``python -m
 fixbench``) ``--runs`` times each, interleaved with the same commands through ``--baseline`` (any
@@ -48,7 +48,7 @@ def measure(runs: int, baseline: list[str] | None) -> list[dict]:
     return out
 
 
-PROG = "python -m fixbench.bench.studies.startup"
+PROG = "python -m studies.startup"
 
 
 @click.command(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})

@@ -1,12 +1,13 @@
 """MARL benchmark: the seed's Figure 4, the speed of the reference protocol, and small-case optima.
 
-    python -m fixbench.bench.studies.marl figure4 [--case wing_panel] [--agents 1,3,5] [--episodes 100] [--out DIR]
-    python -m fixbench.bench.studies.marl speed   [--case wing_panel] [--planner nashq] [--episodes 100] [--threads T]
-                                          [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
-    python -m fixbench.bench.studies.marl table   [--episodes 100] [--seed 0] [--json]
-    python -m fixbench.bench.studies.marl heldout [--case wing_panel] [--planner nashq] [--fraction 0.2]
-                                          [--episodes 100] [--json]
-    python -m fixbench.bench.studies.marl floor   [--case wing_panel] [--threads T] [--json]
+    python -m studies.marl figure4 [--case wing_panel] [--planner nashq|iql] [--agents 1,3,5] [--episodes 100]
+                                   [--out DIR]
+    python -m studies.marl speed   [--case wing_panel] [--planner nashq|iql] [--episodes 100] [--threads T]
+                                   [--seed S] [--device cpu|cuda] [--json] [--figures DIR]
+    python -m studies.marl table   [--episodes 100] [--seed 0] [--json]
+    python -m studies.marl heldout [--case wing_panel] [--planner nashq|iql] [--every 5]
+                                   [--episodes 100] [--json]
+    python -m studies.marl floor   [--case wing_panel] [--threads T] [--json]
 
 ``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
@@ -15,11 +16,16 @@ violin plot of the percentage difference in max deformation of every layout trie
 the best one seen on its task, one line and one violin per run (e.g. per agent count). ``speed``
 runs the full protocol once and reports the wall time split into oracle, action selection and
 network updates (timed inside the planner). ``table`` compares nashq and iql with the proven optimum
-on every ``*_small`` case. ``heldout`` trains a learner on a fraction of the tasks and compares its
-zero-sample layouts on the other tasks with planners that spend samples on each of them.
+on every ``*_small`` case. ``heldout`` trains a learner on the held-out track's training tasks (tasks
+0, k, 2k, ..., as ``fixbench run`` with mode "held-out" and ``heldout_every = k``) and compares its
+zero-sample layouts on the other tasks with planners that spend 1, 5, 20 and 100 samples on each of
+them (the harness's held-out table scores against the shipped reference at the matrix's one budget).
 ``floor`` measures what one network update of the protocol costs on this machine and what it cannot
 cost less than: the floating-point work of its 11 batched products against this machine's rate on a
 large matrix product, and the bytes of its optimiser pass (:func:`update_floor`).
+
+``--planner`` takes the learners with the seed's reward and a ``device``, nashq and iql: vdn, mappo and
+ippo optimise the scaled reward only (time them with ``fixbench solve``).
 
 Oracle set-up (meshing, factorisation, and the compliance columns of every candidate, which the
 oracle otherwise computes lazily the first time a layout uses a candidate) is done and timed
@@ -45,6 +51,8 @@ from fixbench.cases.spec import case_names
 
 #: the seed's protocol: its Gaussian reward with the case's widths (the learners' default is 'scaled')
 SEED_REWARD = "gaussian"
+#: the learners with a ``reward`` and a ``device`` field: the only ones that can run the seed's protocol
+SEED_LEARNERS = ("nashq", "iql")
 
 
 def _learner_runs(info_or_results) -> dict[str, list[dict]]:
@@ -88,7 +96,8 @@ def prepare(problem: Problem) -> float:
 def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None = None,
           episodes: int = 100, seed: int = 0, threads: int = 0, figures: str | None = None,
           device: str = "cpu") -> dict:
-    """Run the reference protocol once; wall time and its split (oracle / selection / updates).
+    """Run the reference protocol once with ``planner`` (one of :data:`SEED_LEARNERS`); wall time and its
+    split (oracle / selection / updates).
 
     With ``figures`` (a directory), the same run's Figure 4 panels and its training record
     (``training.json``) are written there too.
@@ -133,8 +142,24 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
       products at the best rate measured here (theirs or the large product's) plus the optimiser pass as
       measured: a lower bound for the same arithmetic on this machine, but for what a faster optimiser
       pass (a memory-bound stream of 11 arrays) could save.
+
+    torch and numba run at ``threads`` threads during the measurement; their settings are restored after.
     """
     import numba
+    import torch
+
+    saved = torch.get_num_threads(), numba.get_num_threads()
+    torch.set_num_threads(threads)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        return _update_floor(case, agents, threads, repeat, seed)
+    finally:  # the caller's thread counts, however the measurement ends
+        torch.set_num_threads(saved[0])
+        numba.set_num_threads(saved[1])
+
+
+def _update_floor(case: str, agents: int | None, threads: int, repeat: int, seed: int) -> dict:
+    """:func:`update_floor`'s measurement, at the thread counts it set."""
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
@@ -142,8 +167,6 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
     from fixbench.solvers.marl_engine import Learner, Update
     from fixbench.solvers.nashq import NashQConfig
 
-    torch.set_num_threads(threads)
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     problem = load_problem(case, agents=agents)
     cfg = NashQConfig()
     learner = Learner(problem, cfg.hidden, cfg.max_sweeps, True, torch.device("cpu"),
@@ -208,16 +231,13 @@ def update_floor(case: str = "wing_panel", agents: int | None = None, threads: i
 
 def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list[dict]:
     """Greedy-policy mean max deformation of each planner against the proven optimum, *_small cases."""
-    from fixbench.solvers.registry import available, get
+    from fixbench.solvers.registry import get
 
     rows = []
     for case in [c for c in case_names() if c.endswith("_small")]:
         problem = load_problem(case)
         prepare(problem)
-        if "exact" in available():
-            opt = get("exact")().solve(problem, None).max_deformation
-        else:  # enumerate on the uncounted oracle
-            opt = _enumerate(problem)
+        opt = get("exact")().solve(problem, None).max_deformation
         for name in planners:
             t = time.perf_counter()
             res = get(name)(episodes=episodes, optima=tuple(float(x) for x in opt),
@@ -232,30 +252,35 @@ def table(episodes: int = 100, seed: int = 0, planners=("nashq", "iql")) -> list
     return rows
 
 
-def heldout(case: str = "wing_panel", planner: str = "nashq", fraction: float = 0.2, episodes: int = 100,
+def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, episodes: int = 100,
             seed: int = 0, per_task: tuple[int, ...] = (1, 5, 20, 100),
             baselines: tuple[str, ...] = ("random", "greedy"), **planner_config) -> list[dict]:
     """A learner trained on some tasks, acting on the others with no samples, beside planners that spend
     ``per_task`` samples on every held-out task.
 
-    The learner trains on ``fraction`` of the tasks (evenly spaced) for ``episodes`` episodes; its greedy
-    policy's layouts on the held-out tasks cost nothing. Each baseline solves the held-out tasks alone at
-    each per-task budget. Gap: mean max deformation over the held-out tasks against the best layout any
-    of these runs found on each task (no proven optimum at this size).
+    The split is the harness's held-out track (:func:`fixbench.bench.comparison.heldout_tasks`): the
+    learner trains on tasks 0, ``every``, 2 ``every``, ... for ``episodes`` episodes, through
+    ``Planner.solve(train_tasks=...)`` as a held-out cell does; its greedy policy's layouts on the other
+    tasks cost nothing (``train_policy_um``: the same policy on its training tasks, ``train_best_seen_um``:
+    the best layout it saw there). Each baseline solves the held-out tasks alone at each per-task budget.
+    Gap: mean max deformation over the held-out tasks against the best layout any of these runs found on
+    each task (no proven optimum at this size).
     """
+    from fixbench.bench.comparison import heldout_tasks
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
     problem = load_problem(case)
     prepare(problem)
+    held = np.asarray(heldout_tasks(problem.n_tasks, every), dtype=int)
+    train = np.setdiff1d(np.arange(problem.n_tasks), held)
     t = time.perf_counter()
-    res = get(planner)(episodes=episodes, train_fraction=fraction,
-                       **{"reward": SEED_REWARD, **planner_config}).solve(problem, None, seed=seed)
-    held = np.asarray(res.info["held_out_tasks"], dtype=int)
-    train = np.asarray(res.info["train_tasks"], dtype=int)
+    res = get(planner)(episodes=episodes, **{"reward": SEED_REWARD, **planner_config}).solve(
+        problem, None, seed=seed, train_tasks=train.tolist())
+    policy_u = res.max_deformation if res.policy_max_deformation is None else res.policy_max_deformation
     runs = [{"planner": planner, "samples_per_held_out_task": 0, "samples": res.samples,
-             "u": res.max_deformation[held], "train_mean_um": 1e6 * float(res.max_deformation[train].mean()),
-             "seconds": time.perf_counter() - t}]
+             "u": res.max_deformation[held], "train_best_seen_um": 1e6 * float(res.max_deformation[train].mean()),
+             "train_policy_um": 1e6 * float(policy_u[train].mean()), "seconds": time.perf_counter() - t}]
     sub = Problem(problem.spec.with_tasks(held.tolist()))
     prepare(sub)
     for name in baselines:
@@ -279,24 +304,8 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", fraction: float = 
     return rows
 
 
-def _enumerate(problem: Problem, chunk: int = 2**18) -> np.ndarray:
-    """Per-task optimum by enumeration on the uncounted oracle (fallback without fixbench.solvers.exact)."""
-    sets = problem.action_sets
-    total = problem.joint_size
-    best = np.full(problem.n_tasks, np.inf)
-    for start in range(0, total, chunk):
-        idx = np.arange(start, min(total, start + chunk))
-        cols = []
-        for s in reversed(sets):
-            idx, d = np.divmod(idx, len(s))
-            cols.append(s[d])
-        layouts = np.column_stack(cols[::-1])
-        for t in range(problem.n_tasks):
-            best[t] = min(best[t], problem.measure(t, layouts)[:, 3].min())
-    return best
-
-
-PROG = "python -m fixbench.bench.studies.marl"
+PROG = "python -m studies.marl"
+PLANNER_HELP = "the learners with the seed's reward (vdn, mappo and ippo have only the scaled reward)"
 
 
 @click.group(help=__doc__.split("\n")[0], context_settings={"help_option_names": ["-h", "--help"]})
@@ -306,7 +315,7 @@ def cli() -> None:
 
 @cli.command("figure4", short_help="Draw the report's Figure 4, one panel a file.")
 @click.option("--case", default="wing_panel", show_default=True)
-@click.option("--planner", default="nashq", show_default=True)
+@click.option("--planner", type=click.Choice(SEED_LEARNERS), default="nashq", show_default=True, help=PLANNER_HELP)
 @click.option("--agents", default="5", show_default=True, help="comma-separated agent counts, one run each")
 @click.option("--episodes", type=int, default=100, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -327,7 +336,7 @@ def figure4_cmd(case: str, planner: str, agents: str, episodes: int, seed: int, 
 
 @cli.command("speed", short_help="Run the reference protocol once; wall time and its split.")
 @click.option("--case", default="wing_panel", show_default=True)
-@click.option("--planner", default="nashq", show_default=True)
+@click.option("--planner", type=click.Choice(SEED_LEARNERS), default="nashq", show_default=True, help=PLANNER_HELP)
 @click.option("--agents", type=int)
 @click.option("--episodes", type=int, default=100, show_default=True)
 @click.option("--threads", type=int, default=0, show_default=True)
@@ -347,15 +356,16 @@ def speed_cmd(case: str, planner: str, agents: int | None, episodes: int, thread
 
 @cli.command("heldout", short_help="Learner's zero-sample layouts on held-out tasks vs planners.")
 @click.option("--case", default="wing_panel", show_default=True)
-@click.option("--planner", default="nashq", show_default=True)
-@click.option("--fraction", type=float, default=0.2, show_default=True)
+@click.option("--planner", type=click.Choice(SEED_LEARNERS), default="nashq", show_default=True, help=PLANNER_HELP)
+@click.option("--every", type=click.IntRange(min=2), default=5, show_default=True,
+              help="train on tasks 0, k, 2k, ... (the held-out track's heldout_every), act on the others")
 @click.option("--episodes", type=int, default=100, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "as_json", is_flag=True)
-def heldout_cmd(case: str, planner: str, fraction: float, episodes: int, seed: int, as_json: bool) -> None:
-    """Train a learner on a fraction of the tasks and compare its zero-sample layouts on the other tasks
-    with planners that spend samples on each of them."""
-    _print_rows(heldout(case, planner, fraction, episodes, seed), as_json)
+def heldout_cmd(case: str, planner: str, every: int, episodes: int, seed: int, as_json: bool) -> None:
+    """Train a learner on every k-th task (the held-out track's split) and compare its zero-sample layouts
+    on the other tasks with planners that spend samples on each of them."""
+    _print_rows(heldout(case, planner, every, episodes, seed), as_json)
 
 
 @cli.command("floor", short_help="One update's cost on this machine and its lower bound.")

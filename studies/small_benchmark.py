@@ -1,6 +1,6 @@
 """Exact optima of the ``*_small`` cases, and how close the search planners get at 2 % of it.
 
-Not a test: a closing-note benchmark. ``python -m fixbench.bench.studies.small_benchmark [CASE ...]`` (default:
+Not a test: a closing-note benchmark. ``python -m studies.small_benchmark [CASE ...]`` (default:
 the four ``*_small`` cases) prints one row per case: set-up time (FE model and oracle), exact's wall
 time and its mean max deformation (per-task mode), then greedy's, GA's and PSO's mean over seeds of
 their gap in mean max deformation with a budget of 2 % of the enumeration's samples.
@@ -41,7 +41,7 @@ def run(case: str) -> dict:
     return row
 
 
-PROG = "python -m fixbench.bench.studies.small_benchmark"
+PROG = "python -m studies.small_benchmark"
 
 
 @click.command(help=__doc__, context_settings={"help_option_names": ["-h", "--help"]})
