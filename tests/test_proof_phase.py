@@ -99,13 +99,21 @@ def test_the_phase_gives_what_one_exact_job_gives(matrix, tmp_path):
         assert ref[key] == whole[key], key
 
 
+def _killed(matrix, out, monkeypatch, stop_after: int) -> Path:
+    """Run the matrix into ``out`` until a kill after ``stop_after`` proven positions (KeyboardInterrupt in
+    the proof phase); returns its proof records' file."""
+    _Counted(monkeypatch, stop_after=stop_after)
+    with pytest.raises(KeyboardInterrupt):
+        run_matrix(matrix, out, workers=1, progress=False)
+    (path,) = (out / "reference").glob("*.proof.jsonl")
+    return path
+
+
 def test_a_killed_proof_resumes_without_proving_a_position_again(matrix, tmp_path, monkeypatch):
     whole = tmp_path / "whole"
     run_matrix(matrix, whole, workers=1, progress=False)
     out = tmp_path / "run"
-    _Counted(monkeypatch, stop_after=2)
-    with pytest.raises(KeyboardInterrupt):
-        run_matrix(matrix, out, workers=1, progress=False)
+    _killed(matrix, out, monkeypatch, stop_after=2)
     assert not (out / "rows").exists() or not any((out / "rows").glob("*.json"))
     kept = [r["position"] for r in _records(out)[1:]]
     assert len(kept) == 2
@@ -122,10 +130,7 @@ def test_a_record_cut_short_by_a_kill_is_proven_again(matrix, tmp_path, monkeypa
     whole = tmp_path / "whole"
     run_matrix(matrix, whole, workers=1, progress=False)
     out = tmp_path / "run"
-    _Counted(monkeypatch, stop_after=3)
-    with pytest.raises(KeyboardInterrupt):
-        run_matrix(matrix, out, workers=1, progress=False)
-    (path,) = (out / "reference").glob("*.proof.jsonl")
+    path = _killed(matrix, out, monkeypatch, stop_after=3)
     lines = path.read_text().splitlines()
     cut = json.loads(lines[-1])["position"]
     path.write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:25])  # the last record half written
@@ -138,10 +143,7 @@ def test_a_record_cut_short_by_a_kill_is_proven_again(matrix, tmp_path, monkeypa
 
 def test_records_of_another_case_definition_are_not_used(matrix, tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
-    _Counted(monkeypatch, stop_after=3)
-    with pytest.raises(KeyboardInterrupt):
-        run_matrix(matrix, out, workers=1, progress=False)
-    (path,) = (out / "reference").glob("*.proof.jsonl")
+    path = _killed(matrix, out, monkeypatch, stop_after=3)
     header, *rest = path.read_text().splitlines()
     path.write_text("\n".join([json.dumps({**json.loads(header), "case_fingerprint": "0"}), *rest]) + "\n")
     rerun = _Counted(monkeypatch)
