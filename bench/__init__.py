@@ -10,7 +10,7 @@ __all__ = ["load_results"]
 
 def __getattr__(name: str):
     if name == "load_results":
-        from fixbench.bench.store import load_results
+        from fixbench.bench.running.store import load_results
 
         return load_results
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -19,9 +19,9 @@ Five checks, each a section of the result (:func:`check_case`):
   beyond it: the layouts a planner meets then lie outside the model (the best random layout and
   the worst are reported too).
 - **reference**: layouts a position (the joint size), what a matrix's reference phase costs
-  (:func:`fixbench.bench.cells.compute_reference`: ``exact``'s enumeration up to its
+  (:func:`fixbench.bench.running.cells.compute_reference`: ``exact``'s enumeration up to its
   ``max_enumeration``, else its MILP up to ``max_milp_columns``, else nothing) and what the
-  reference portfolio of ``fixbench references build`` costs (:class:`~fixbench.bench.references.Portfolio`,
+  reference portfolio of ``fixbench references build`` costs (:class:`~fixbench.bench.running.references.Portfolio`,
   an upper bound of its samples; with the ``exact`` proof where joint size x tasks is at most
   ``prove_limit``), in samples and in seconds on this machine from the oracle's time per layout,
   measured here: in batches of ``batch`` layouts (enumeration) and one at a time (planners: their
@@ -45,8 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fixbench.bench.perf import median_time
-from fixbench.bench.references import Portfolio
+from fixbench.bench.analysis.perf import median_time
+from fixbench.bench.running.references import Portfolio
 from fixbench.cases.linearity import LIMIT
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
@@ -101,7 +101,7 @@ def check_case(case: str | Path, material: str | None = None, out: Path | None =
                settings: CheckSettings | None = None) -> dict:
     """Every figure of ``fixbench check`` for ``case`` (see the module docstring); the picture is
     written to ``out`` (default: CASE.png here). ``warnings`` lists one line per warning."""
-    from fixbench.bench.plots import show_case
+    from fixbench.bench.reporting.plots import show_case
 
     s = settings or CheckSettings()
     problem = load_problem(case, material)  # the file is checked before any work
@@ -202,7 +202,7 @@ def oracle_times(problem: Problem, s: CheckSettings) -> dict:
 
 
 def matrix_reference(problem: Problem, evaluations: int, batched: float) -> dict:
-    """What ``exact`` does as a matrix's reference (bench/cells.py): samples and time, or why not."""
+    """What ``exact`` does as a matrix's reference (bench/running/cells.py): samples and time, or why not."""
     cfg = ExactConfig()
     if problem.joint_size <= cfg.max_enumeration:
         return {"method": "enumeration", "samples": evaluations, "time_s": evaluations * batched}

@@ -91,7 +91,7 @@ def show(case: str, material: str | None, out: Path | None) -> None:
     """Picture of CASE: part, mesh, candidates coloured by robot (named by their regions where the case
     names them), supports, tasks; and whether its Gaussian reward widths give random layouts a reward
     other than 0 or 1 (a warning if not)."""
-    from fixbench.bench.plots import show_case
+    from fixbench.bench.reporting.plots import show_case
 
     problem = _problem(case, material)
     path = show_case(problem, out or Path(f"{problem.name}.png"))
@@ -174,11 +174,11 @@ def evaluate(case, task, layout, free, at, material, as_json, plot, vtk) -> None
                         for (x, y), (ux, uy, w) in zip(points, u)]
     lay = None if free else [idx]
     if plot:
-        from fixbench.bench.plots import field_plot
+        from fixbench.bench.reporting.plots import field_plot
 
         field_plot(problem, task, lay, plot)
     if vtk:
-        from fixbench.bench.plots import write_vtk
+        from fixbench.bench.reporting.plots import write_vtk
 
         write_vtk(problem, task, lay, vtk)
     if as_json:
@@ -202,7 +202,7 @@ def validate(as_json: bool, with_parts: bool) -> None:
     """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%. Then one
     line per catalog part: its largest w/t at the reference layouts (shipped reference, or the proven
     optimum of a *_small case at the default matrix's agent count); exit 1 if any is beyond 0.5."""
-    from fixbench.bench.matrix import find_matrix, load_matrix
+    from fixbench.bench.running.matrix import find_matrix, load_matrix
     from fixbench.cases.analytic import validate as run
     from fixbench.cases.linearity import part_rows
 
@@ -231,7 +231,7 @@ def validate(as_json: bool, with_parts: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
 def perf(case: str, batch: int, as_json: bool) -> None:
     """Oracle against re-assembly + direct sparse solve, run side by side."""
-    from fixbench.bench.perf import run_perf
+    from fixbench.bench.analysis.perf import run_perf
 
     res = run_perf(case, batch=batch, progress=not as_json)
     if as_json:
@@ -285,7 +285,7 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
     train = None if heldout_every is None else list(range(0, problem.n_tasks, heldout_every))
     result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
     if plot:
-        from fixbench.bench.plots import anytime_plot
+        from fixbench.bench.reporting.plots import anytime_plot
 
         anytime_plot(result, plot)
     summary = result.summary()
@@ -314,7 +314,7 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
 def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
     """Run the benchmark MATRIX (a TOML file, or the name of a shipped one: default, paper, sweep)
     into OUT; rerun to resume."""
-    from fixbench.bench.runner import run_matrix
+    from fixbench.bench.running.runner import run_matrix
 
     try:
         summary = run_matrix(matrix, out, executor=executor, workers=workers, address=ray_address,
@@ -366,7 +366,7 @@ def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
 def tune_table(folder, readme) -> None:
     """Write FOLDER/table.md, the table of the tuned entries in FOLDER (`fixbench tune PLANNER --out
     FOLDER/PLANNER.toml`), and print it."""
-    from fixbench.bench.tables import refresh_readme
+    from fixbench.bench.reporting.tables import refresh_readme
     from fixbench.bench.tune import tuning_table
     from fixbench.cases.files import write_text_atomic
 
@@ -392,9 +392,9 @@ def tune_table(folder, readme) -> None:
 def report(run_dirs, with_runs, out, no_fields, readme) -> None:
     """Tables (Markdown, LaTeX, CSV) and figures (PNG, PDF) of the run in RUN_DIR; of several runs of
     one protocol (RUN_DIRs and --with runs) merged into one report."""
-    from fixbench.bench.merge import committed_run
-    from fixbench.bench.report import make_report
-    from fixbench.bench.tables import refresh_readme
+    from fixbench.bench.reporting.merge import committed_run
+    from fixbench.bench.reporting.report import make_report
+    from fixbench.bench.reporting.tables import refresh_readme
 
     runs = [*run_dirs, *(committed_run(name) for name in with_runs)]
     if not runs:
@@ -434,7 +434,7 @@ def verify(run_dir, k, seed, only, workers) -> None:
               help="Folder to write (default: RUN_DIR/export/FORMAT); an earlier export there is replaced.")
 def export(run_dir, fmt, out) -> None:
     """Write the run in RUN_DIR in a format other tools read (IOHanalyzer, marl-eval, CSV)."""
-    from fixbench.bench.export import export_run
+    from fixbench.bench.reporting.export import export_run
 
     res = export_run(run_dir, fmt, out or run_dir / "export" / fmt)
     counts = {k: v for k, v in res.items() if isinstance(v, int)}
@@ -461,7 +461,7 @@ MAX_TABLE = 2 * 10**7
 def equilibria(case, task, agents, material, starts, seed, out, as_json) -> None:
     """Person-by-person optima of CASE by exhaustive enumeration (analysis, uncounted; not a planner):
     how many, their regret against the optimum, their basins under greedy best response."""
-    from fixbench.bench.equilibria import analyse
+    from fixbench.bench.analysis.equilibria import analyse
 
     problem = _problem(case, material, agents)
     if problem.joint_size > MAX_TABLE:
@@ -476,8 +476,8 @@ def equilibria(case, task, agents, material, starts, seed, out, as_json) -> None
         for rec in res["tasks"]:
             rec["table_m"] = tables[rec["task"]]
     if out:
-        from fixbench.bench.analysis_figures import figure3
-        from fixbench.bench.plots import save_png
+        from fixbench.bench.analysis.analysis_figures import figure3
+        from fixbench.bench.reporting.plots import save_png
 
         fig = figure3(tables[task], f"{problem.name} ({res['material']}), task {task}: max |u| of all "
                       f"{problem.joint_size:,} layouts\n(exhaustive enumeration: analysis, not a planner)")
@@ -514,15 +514,15 @@ def equilibria(case, task, agents, material, starts, seed, out, as_json) -> None
 def robots(case, tolerance_um, max_agents, material, fraction, max_evaluations, out, as_json) -> None:
     """How many robots keep CASE within a tolerance: the best max deformation of every task for N = 1..K
     (proven optimum by enumeration, else a shipped reference, else unavailable)."""
-    from fixbench.bench.robots import MAX_EVALUATIONS, robots_needed, robots_table
+    from fixbench.bench.analysis.robots import MAX_EVALUATIONS, robots_needed, robots_table
 
     k = max_agents or _problem(case, material).n_agents
     tol = tolerance_um * 1e-6
     rows = robots_table(case, material, k, tol, max_evaluations or MAX_EVALUATIONS)
     answers = [robots_needed(rows, f) for f in sorted({1.0, fraction})]
     if out:
-        from fixbench.bench.analysis_figures import robots_figure
-        from fixbench.bench.plots import save_png
+        from fixbench.bench.analysis.analysis_figures import robots_figure
+        from fixbench.bench.reporting.plots import save_png
 
         fig = robots_figure(rows, tol, f"{rows[0]['case']} ({rows[0]['material']}): best max |u| per task")
         click.echo(f"wrote {save_png(fig, out)}", err=as_json)
@@ -530,7 +530,7 @@ def robots(case, tolerance_um, max_agents, material, fraction, max_evaluations, 
         echo_json({"case": rows[0]["case"], "material": rows[0]["material"], "tolerance_m": tol,
                    "rows": rows, "answers": answers})
         return
-    from fixbench.bench.robots import answer_text, show_robots
+    from fixbench.bench.analysis.robots import answer_text, show_robots
 
     click.echo(show_robots(rows).to_markdown(index=False))
     for a in answers:
@@ -575,7 +575,7 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
     """Run the reference portfolio on CASE and write (or improve) its shipped reference."""
     from dataclasses import replace
 
-    from fixbench.bench.references import Portfolio, build_and_write
+    from fixbench.bench.running.references import Portfolio, build_and_write
 
     effort = Portfolio()
     if samples_per_task is not None:
@@ -594,7 +594,7 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
               help="References folder (default: the catalog's).")
 def references_update(run_dir, out) -> None:
     """Replace shipped reference layouts that any run in RUN_DIR beats (re-measured first)."""
-    from fixbench.bench.references import update
+    from fixbench.bench.running.references import update
 
     changed = update(run_dir, echo=lambda m: click.echo(m, err=True), folder=out)
     click.echo(f"{sum(changed.values())} tasks replaced in {len(changed)} reference files")
@@ -604,9 +604,23 @@ def references_update(run_dir, out) -> None:
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def references_rescore(run_dir) -> None:
     """Recompute RUN_DIR's regret columns against the shipped references as they are now."""
-    from fixbench.bench.references import rescore
+    from fixbench.bench.running.references import rescore
 
     rescore(run_dir, echo=click.echo)
+
+
+@references.command("check")
+@click.option("--json", "as_json", is_flag=True, help="Print the rows as strict JSON.")
+def references_check(as_json) -> None:
+    """Run the portfolio on every *_small case and compare with exact's proven optima."""
+    from fixbench.bench.running.references import check_small
+
+    rows = check_small(echo=lambda r: None if as_json else click.echo(r))
+    if as_json:
+        echo_json(rows)
+    else:
+        n, k = sum(r["tasks"] for r in rows), sum(r["reached"] for r in rows)
+        click.echo(f"optimum reached on {k} of {n} tasks ({100 * k / n:.1f} %)")
 
 
 @cli.group()

@@ -64,7 +64,7 @@ def _suggest(trial, key: str, s: tuple):
 def _tuning_problem(case: str) -> tuple:
     """A tuning case's problem and its mean proven optimum (``exact``: minutes of CPU, so computed once
     a process)."""
-    from fixbench.bench.cells import compute_reference, problem_for
+    from fixbench.bench.running.cells import compute_reference, problem_for
 
     ref = compute_reference(case, None, None, None, ("per-task",))
     if ref["error"] or ref["per_task"] is None:
@@ -179,7 +179,7 @@ def tuning_table(folder: Path) -> str:
     """The Markdown table of every tuned entry (``*.toml``) in ``folder``, by planner: the objective of
     the defaults and of the tuned config, each with the geometric-mean regret it stands for, and the
     tuned config (``fixbench tune-table``)."""
-    from fixbench.bench.tables import fmt
+    from fixbench.bench.reporting.tables import fmt
 
     def regret(x: float) -> str:
         return f"{x:.4f} ({math.expm1(x) * 100:.0f} %)"

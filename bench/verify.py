@@ -11,11 +11,11 @@ and prints, per cell, the committed and the new scored value (``objective_m``):
 - a learner whose results follow the host's floating-point code paths (PyTorch training:
   ``same_on_every_host = False``) agrees when it does so to 1e-9 (the same code path), else when the
   new value falls within its group's 95 % prediction interval over seeds
-  (:func:`fixbench.bench.stats.prediction_interval`; the group: the row's planner entry and problem,
+  (:func:`fixbench.bench.reporting.stats.prediction_interval`; the group: the row's planner entry and problem,
   every seed);
 
 and, for every cell, where this host's code path (CPU, BLAS, threads, switches, library versions;
-:mod:`fixbench.bench.provenance`) differs from the one the row records. The command exits 1 when a
+:mod:`fixbench.bench.running.provenance`) differs from the one the row records. The command exits 1 when a
 cell disagrees.
 
 The sample (:func:`sample`) is drawn with a seed across planners: one cell of each planner entry in
@@ -33,14 +33,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.cells import reference_key
-from fixbench.bench.matrix import load_matrix
-from fixbench.bench.merge import load_references, load_rows
-from fixbench.bench.provenance import provenance
-from fixbench.bench.report import check_scored_references
-from fixbench.bench.runner import make_executor, selection, worker_env
-from fixbench.bench.stats import LEVEL, prediction_interval
-from fixbench.bench.store import Store
+from fixbench.bench.reporting.merge import load_references, load_rows
+from fixbench.bench.reporting.report import check_scored_references
+from fixbench.bench.reporting.stats import LEVEL, prediction_interval
+from fixbench.bench.running.cells import reference_key
+from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.provenance import provenance
+from fixbench.bench.running.runner import make_executor, selection, worker_env
+from fixbench.bench.running.store import Store
 from fixbench.cases.errors import CaseError
 
 #: relative tolerance of an agreement to the bit (references count a layout better by this margin)

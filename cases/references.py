@@ -2,7 +2,7 @@
 
 Where ``exact`` cannot run (the full parts: millions of layouts per agent set), regret needs a
 reference that no planner beats. It is found offline by a search portfolio (``fixbench references
-build``, see :mod:`fixbench.bench.references`), which is not a planner of the benchmark and is never
+build``, see :mod:`fixbench.bench.running.references`), which is not a planner of the benchmark and is never
 counted, and it is shipped here as versioned data: one JSON file per (case, material, agents) in
 ``cases/catalog/references/``.
 

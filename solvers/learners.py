@@ -16,7 +16,7 @@ learner does the same things, and they live here once:
   :class:`StepRecord` (and :func:`per_episode`), :class:`Timings`;
 - the inputs: :func:`task_features`, :func:`action_positions`;
 - the result: :func:`policy_layouts` and :func:`learner_info` (the ``info`` keys every learner emits,
-  among them the curves Figure 4 draws: bench/figures.py ``FIGURE4_CURVES``).
+  among them the curves Figure 4 draws: bench/reporting/figures.py ``FIGURE4_CURVES``).
 
 docs/planners.md#write-a-learner says how a new learner uses them.
 """
@@ -269,7 +269,7 @@ def learner_info(name: str, cfg: LearnerConfig, problem: Problem, ids: np.ndarra
     """The ``info`` of a learner's run: the keys every learner emits, the learner's ``own`` keys among
     them. Figure 4 draws ``step_reward``, ``step_max_u``, ``step_task`` and ``episode_return`` from these
     (and ``episode_regret_ref`` / ``episode_regret_true`` where a learner adds them to ``own``); the
-    harness stores every numeric list as a curve (bench/cells.py). Call after :func:`torch_run` restored
+    harness stores every numeric list as a curve (bench/running/cells.py). Call after :func:`torch_run` restored
     the thread setting (``torch_threads`` reports the run's)."""
     rew, u, task = record.arrays()
     return {

@@ -69,10 +69,10 @@ def landscape_rows(records: list[dict]) -> pd.DataFrame:
 
 def write_equilibria(out: Path, starts: int, seed: int, echo) -> list[Path]:
     """Figure 3, the landscape tables and figure (see the module docstring)."""
-    from fixbench.bench.analysis_figures import figure3, landscape_figure
-    from fixbench.bench.equilibria import analyse
-    from fixbench.bench.plots import save_png
-    from fixbench.bench.tables import show_numbers
+    from fixbench.bench.analysis.analysis_figures import figure3, landscape_figure
+    from fixbench.bench.analysis.equilibria import analyse
+    from fixbench.bench.reporting.plots import save_png
+    from fixbench.bench.reporting.tables import show_numbers
     from fixbench.cases.problem import load_problem
     from fixbench.cases.references import case_fingerprint
 
@@ -107,9 +107,9 @@ def write_equilibria(out: Path, starts: int, seed: int, echo) -> list[Path]:
 
 def write_robots(out: Path, tolerance_um: float, fraction: float, echo) -> list[Path]:
     """The robots tables and figures of :data:`ROBOTS` in every material of :data:`MATERIALS`."""
-    from fixbench.bench.analysis_figures import robots_figure
-    from fixbench.bench.plots import save_png
-    from fixbench.bench.robots import answer_text, robots_needed, robots_table, show_robots
+    from fixbench.bench.analysis.analysis_figures import robots_figure
+    from fixbench.bench.analysis.robots import answer_text, robots_needed, robots_table, show_robots
+    from fixbench.bench.reporting.plots import save_png
 
     tol = tolerance_um * 1e-6
     written, records = [], []
@@ -181,7 +181,7 @@ def cli(out, readme, only, starts, seed, tolerance_um, fraction) -> None:
         written += write_robots(out, tolerance_um, fraction, echo)
     click.echo(f"wrote {len(written)} files to {out}")
     if readme is not None:
-        from fixbench.bench.tables import refresh_readme
+        from fixbench.bench.reporting.tables import refresh_readme
 
         click.echo(f"refreshed {refresh_readme(readme, out)} tables in {readme}")
 

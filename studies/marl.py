@@ -9,7 +9,7 @@
                                    [--episodes 100] [--json]
     python -m studies.marl floor   [--case wing_panel] [--threads T] [--json]
 
-``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.figures.draw_figure4`) one panel a
+``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.reporting.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
 N T r* - N sum r, and the true regret against the best layout seen) against episode, and (d) a
 violin plot of the percentage difference in max deformation of every layout tried in training from
@@ -44,8 +44,8 @@ import click
 import numpy as np
 
 from fixbench.bench.cli_common import run_command
-from fixbench.bench.figures import FIGURE4_CURVES, figure4_panels, palette
-from fixbench.bench.plots import save_png
+from fixbench.bench.reporting.figures import FIGURE4_CURVES, figure4_panels, palette
+from fixbench.bench.reporting.plots import save_png
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import case_names
 
@@ -56,7 +56,7 @@ SEED_LEARNERS = ("nashq", "iql")
 
 
 def _learner_runs(info_or_results) -> dict[str, list[dict]]:
-    """Figure 4's input (:func:`fixbench.bench.figures.learner_runs`) from one run or a dict {label: run},
+    """Figure 4's input (:func:`fixbench.bench.reporting.figures.learner_runs`) from one run or a dict {label: run},
     a run being a planner's info dict or PlanResult; the true regret and the violin are against the best
     layout each run saw on a task (a run keeps no optima)."""
     def one(x) -> dict:
@@ -75,7 +75,7 @@ FIGURE4_FILES = ("fig4a_step_reward.png", "fig4b_episodic_return.png", "fig4c_ep
 
 
 def figure4(info_or_results, out_dir: str | Path) -> list[Path]:
-    """Write the four panels of the seed's Figure 4 (:func:`fixbench.bench.figures.figure4_panels`, the
+    """Write the four panels of the seed's Figure 4 (:func:`fixbench.bench.reporting.figures.figure4_panels`, the
     report's Figure 4 one panel a file) as PNGs into ``out_dir``; returns the paths.
 
     ``info_or_results``: a planner's info dict or PlanResult, or a dict {label: info or PlanResult}
@@ -163,7 +163,7 @@ def _update_floor(case: str, agents: int | None, threads: int, repeat: int, seed
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
-    from fixbench.bench.perf import median_time
+    from fixbench.bench.analysis.perf import median_time
     from fixbench.solvers.marl_engine import Learner, Update
     from fixbench.solvers.nashq import NashQConfig
 
@@ -258,7 +258,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     """A learner trained on some tasks, acting on the others with no samples, beside planners that spend
     ``per_task`` samples on every held-out task.
 
-    The split is the harness's held-out track (:func:`fixbench.bench.comparison.heldout_tasks`): the
+    The split is the harness's held-out track (:func:`fixbench.bench.reporting.comparison.heldout_tasks`): the
     learner trains on tasks 0, ``every``, 2 ``every``, ... for ``episodes`` episodes, through
     ``Planner.solve(train_tasks=...)`` as a held-out cell does; its greedy policy's layouts on the other
     tasks cost nothing (``train_policy_um``: the same policy on its training tasks, ``train_best_seen_um``:
@@ -266,7 +266,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     Gap: mean max deformation over the held-out tasks against the best layout any of these runs found on
     each task (no proven optimum at this size).
     """
-    from fixbench.bench.comparison import heldout_tasks
+    from fixbench.bench.reporting.comparison import heldout_tasks
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 

@@ -126,7 +126,7 @@ def test_no_disk_cache_unless_named(monkeypatch):
 def test_a_run_keeps_its_cache_in_its_run_directory(tmp_path, monkeypatch, capsys):
     """Nothing is written outside the run directory: the workers' cache is OUT/oracle-cache, and
     neither the home directory nor the working directory gains a file."""
-    from fixbench.bench.runner import run_matrix
+    from fixbench.bench.running.runner import run_matrix
 
     home, work = tmp_path / "home", tmp_path / "work"
     home.mkdir()

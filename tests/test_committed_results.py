@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fixbench.bench.matrix import task_subset
-from fixbench.bench.merge import load_references
-from fixbench.bench.store import load_results
+from fixbench.bench.reporting.merge import load_references
+from fixbench.bench.running.matrix import task_subset
+from fixbench.bench.running.store import load_results
 from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"
@@ -59,7 +59,7 @@ def test_readme_tables_are_the_committed_reports(doc):
     """Every table of the README and docs/results.md that mirrors a committed table (``<!-- table:
     PATH -->`` blocks) is that table as committed: `fixbench report DIR --readme FILE` and `fixbench
     tune-table DIR --readme FILE` refresh them."""
-    from fixbench.bench.tables import TABLE_BLOCK
+    from fixbench.bench.reporting.tables import TABLE_BLOCK
 
     readme = ROOT.parent / doc
     blocks = list(TABLE_BLOCK.finditer(readme.read_text(encoding="utf-8")))
@@ -71,7 +71,7 @@ def test_readme_tables_are_the_committed_reports(doc):
 
 
 def test_refresh_readme_copies_only_this_reports_tables(tmp_path):
-    from fixbench.bench.tables import refresh_readme
+    from fixbench.bench.reporting.tables import refresh_readme
     from fixbench.cases.errors import CaseError
 
     (tmp_path / "run" / "report" / "tables").mkdir(parents=True)

@@ -10,7 +10,7 @@ from dataclasses import fields
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.matrix import load_matrix
+from fixbench.bench.running.matrix import load_matrix
 from fixbench.cases.errors import CaseError
 from fixbench.solvers import PlannerError, get
 from fixbench.solvers.base import ConfigError

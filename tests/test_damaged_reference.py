@@ -14,7 +14,7 @@ import pytest
 
 import fixbench.cases.references as refs
 from fixbench.bench.cli import main
-from fixbench.bench.store import ROW_SCHEMA, Store
+from fixbench.bench.running.store import ROW_SCHEMA, Store
 from fixbench.cases.errors import CaseError
 
 FILE = "wing_panel__aluminium__a5.json"

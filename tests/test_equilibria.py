@@ -1,4 +1,5 @@
-"""Person-by-person optima, best-response basins and the robots count (bench/equilibria.py, bench/robots.py).
+"""Person-by-person optima, best-response basins and the robots count (bench/analysis/equilibria.py,
+bench/analysis/robots.py).
 
 The PBP count is checked against the definition, layout by layout: a layout is counted if and only
 if no single agent's move gives a strictly lower max deformation (synthetic tables with ties, and a
@@ -13,9 +14,9 @@ import json
 import numpy as np
 import pytest
 
+from fixbench.bench.analysis.equilibria import best_response_descent, joint_table, landscape, pbp_mask
+from fixbench.bench.analysis.robots import best_per_task, robots_needed, robots_table
 from fixbench.bench.cli import main
-from fixbench.bench.equilibria import best_response_descent, joint_table, landscape, pbp_mask
-from fixbench.bench.robots import best_per_task, robots_needed, robots_table
 from fixbench.cases.problem import load_problem
 from fixbench.cases.references import load_reference
 

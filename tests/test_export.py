@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import cli, main
-from fixbench.bench.export import (
+from fixbench.bench.reporting.export import (
     DAT_HEADER,
     FORMATS,
     MARKER,
@@ -23,8 +23,8 @@ from fixbench.bench.export import (
     read_iohprofiler,
     strict_json,
 )
-from fixbench.bench.runner import run_matrix
-from fixbench.bench.store import ROW_SCHEMA, load_curves, load_results, load_traces
+from fixbench.bench.running.runner import run_matrix
+from fixbench.bench.running.store import ROW_SCHEMA, load_curves, load_results, load_traces
 
 # every mode, a classical planner (small batches: several trace rows a task) and a learner with a
 # few episodes; iql has no shared mode, so two of its cells fail (rows with an error)

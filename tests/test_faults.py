@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fixbench.bench.cli import main
-from fixbench.bench.runner import run_matrix
-from fixbench.bench.store import CHECKSUM, Store, load_results, load_traces
+from fixbench.bench.running.runner import run_matrix
+from fixbench.bench.running.store import CHECKSUM, Store, load_results, load_traces
 
 TINY = """
 name = "tiny"
@@ -411,7 +411,7 @@ def _mutate(text: str, data) -> str:
 
 
 def _load_matrix(path: Path) -> None:
-    from fixbench.bench.matrix import load_matrix
+    from fixbench.bench.running.matrix import load_matrix
 
     load_matrix(path).cells()
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.matrix import load_matrix
-from fixbench.bench.runner import run_matrix
-from fixbench.bench.store import ROW_SCHEMA, load_results
+from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.runner import run_matrix
+from fixbench.bench.running.store import ROW_SCHEMA, load_results
 
 TINY = """
 name = "tiny"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fixbench.bench.comparison import (
+from fixbench.bench.reporting.comparison import (
     _scored,
     common_ranks,
     headline_table,
@@ -14,8 +14,8 @@ from fixbench.bench.comparison import (
     main_table,
     show_headline,
 )
-from fixbench.bench.merge import load_runs
-from fixbench.bench.stats import probability_of_improvement
+from fixbench.bench.reporting.merge import load_runs
+from fixbench.bench.reporting.stats import probability_of_improvement
 
 #: greedy stands in for a learner, so that the last line has two sides
 FAMILY = {"random": "random", "greedy": "marl", "local": "local-search"}

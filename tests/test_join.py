@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.merge import load_runs
+from fixbench.bench.reporting.merge import load_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "results" / "tiny"
@@ -99,7 +99,7 @@ def test_the_merged_report_equals_the_extended_copys(journey):
 
 def _rewrite(run: Path, change) -> None:
     """Change every row of ``run`` with ``change(row)`` and keep its checksum valid."""
-    from fixbench.bench.store import Store
+    from fixbench.bench.running.store import Store
 
     store = Store(run)
     for row in store.finished().values():

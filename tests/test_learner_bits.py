@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from fixbench.bench.figures import FIGURE4_CURVES
+from fixbench.bench.reporting.figures import FIGURE4_CURVES
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError, TracedEvaluator

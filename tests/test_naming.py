@@ -8,9 +8,9 @@ import matplotlib
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.plots import candidate_groups, case_figure
-from fixbench.bench.report import case_names, make_report
-from fixbench.bench.runner import run_matrix
+from fixbench.bench.reporting.plots import candidate_groups, case_figure
+from fixbench.bench.reporting.report import case_names, make_report
+from fixbench.bench.running.runner import run_matrix
 from fixbench.cases.problem import load_problem
 from fixbench.solvers.registry import BUILTIN
 

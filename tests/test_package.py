@@ -54,7 +54,7 @@ def test_installed_wheel_runs_from_any_directory(wheel, tmp_path):
     def py(*args):
         return subprocess.run([sys.executable, *args], cwd=work, env=env, capture_output=True, text=True)
 
-    where = py("-c", "import fixbench.cases, fixbench.bench.matrix as m; print(fixbench.cases.__file__); "
+    where = py("-c", "import fixbench.cases, fixbench.bench.running.matrix as m; print(fixbench.cases.__file__); "
                      "print(m.find_matrix('default'))")
     assert where.returncode == 0, where.stderr
     assert all(line.startswith(str(target)) for line in where.stdout.split()), where.stdout
@@ -73,7 +73,7 @@ def test_installed_wheel_runs_from_any_directory(wheel, tmp_path):
 
 
 def test_shipped_matrices_by_name_from_any_directory(tmp_path, monkeypatch):
-    from fixbench.bench.matrix import SHIPPED, find_matrix, load_matrix
+    from fixbench.bench.running.matrix import SHIPPED, find_matrix, load_matrix
     from fixbench.cases.errors import CaseError
 
     monkeypatch.chdir(tmp_path)

@@ -123,7 +123,7 @@ def test_checking_a_matrix_of_builtin_names_imports_no_planner(tmp_path):
                     + "".join(f'[[planners]]\nname = "{n}"\n' for n in names))
     tuned = tmp_path / "tuned.toml"
     tuned.write_text(bare.read_text() + '[[planners]]\nname = "nashq"\nlabel = "n"\nconfig = { episodes = 2 }\n')
-    code = ("import sys\nfrom fixbench.bench.matrix import load_matrix\n"
+    code = ("import sys\nfrom fixbench.bench.running.matrix import load_matrix\n"
             "m = load_matrix(sys.argv[1])\n"
             "print(len(m.planners), sorted(k for k in ('torch', 'cvxpy', 'pymoo', 'optuna') if k in sys.modules))")
     out = [subprocess.run([sys.executable, "-c", code, str(m)], capture_output=True, text=True, check=True).stdout

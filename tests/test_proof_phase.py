@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from fixbench.bench import proof as proof_module
-from fixbench.bench.cells import compute_reference
 from fixbench.bench.cli import main
-from fixbench.bench.matrix import load_matrix
-from fixbench.bench.runner import run_matrix
+from fixbench.bench.running import proof as proof_module
+from fixbench.bench.running.cells import compute_reference
+from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.runner import run_matrix
 
 POSITIONS = 6
 ADD = proof_module.Proof.add  # before any test wraps it

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from fixbench.bench.matrix import Matrix, find_matrix, load_matrix
+from fixbench.bench.running.matrix import Matrix, find_matrix, load_matrix
 from fixbench.cases.spec import case_names
 from fixbench.solvers.registry import BUILTIN
 
@@ -143,7 +143,7 @@ def test_layout_lists_every_module():
                for p in (ROOT / folder).rglob("*.py") if p.name != "__init__.py"}
     listed = listed_modules()
     assert {m for m in listed if m.startswith("studies/")}, "the parse found no studies/"
-    # the parse follows nested folders in and out (the tree has none with modules at present)
+    # the parse follows nested folders in and out (bench/running/ and its siblings rely on it)
     assert tree_paths("a/  x\n  b/\n    c.py  y\n  more words\n  d.py\ne.py\n") == {"a/b/c.py", "a/d.py", "e.py"}
     assert not on_disk - listed, f"not in docs/layout.md: {sorted(on_disk - listed)}"
     assert not listed - on_disk, f"listed but not in the tree: {sorted(listed - on_disk)}"

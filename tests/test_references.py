@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import fixbench.cases.references as refs
-from fixbench.bench.cells import compute_reference
-from fixbench.bench.references import Portfolio, build, rescore, update
-from fixbench.bench.store import CHECKSUM, Store, row_checksum, write_json_atomic
+from fixbench.bench.running.cells import compute_reference
+from fixbench.bench.running.references import Portfolio, build, rescore, update
+from fixbench.bench.running.store import CHECKSUM, Store, row_checksum, write_json_atomic
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import load_case_spec
@@ -129,7 +129,7 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
 
 
 def test_check_small_counts_tasks_at_the_optimum():
-    from fixbench.bench.references import check_small
+    from fixbench.bench.running.references import check_small
 
     rows = check_small(cases=("fan_small",), materials=("steel",), effort=TINY, echo=lambda r: None)
     assert len(rows) == 1 and rows[0]["tasks"] == 6

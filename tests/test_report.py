@@ -17,13 +17,13 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.comparison import heldout_table, improvement_table, main_table, sweep_table
-from fixbench.bench.figures import anytime_figure, ecdf_figure, sweep_figure, violin_figure
-from fixbench.bench.merge import load_references, load_rows
-from fixbench.bench.report import make_report
-from fixbench.bench.stats import bootstrap_ci, iqm, probability_of_improvement
-from fixbench.bench.store import ROW_SCHEMA, Store, load_results, write_json_atomic
-from fixbench.bench.tables import summary_table
+from fixbench.bench.reporting.comparison import heldout_table, improvement_table, main_table, sweep_table
+from fixbench.bench.reporting.figures import anytime_figure, ecdf_figure, sweep_figure, violin_figure
+from fixbench.bench.reporting.merge import load_references, load_rows
+from fixbench.bench.reporting.report import make_report
+from fixbench.bench.reporting.stats import bootstrap_ci, iqm, probability_of_improvement
+from fixbench.bench.reporting.tables import summary_table
+from fixbench.bench.running.store import ROW_SCHEMA, Store, load_results, write_json_atomic
 
 OPT = {"aluminium": [2e-5, 4e-5], "steel": [1e-5, 2e-5]}
 PLANNERS = {"random": 1.5, "greedy": 1.2, "nashq": 1.8}  # final objective / optimum
@@ -199,7 +199,7 @@ def test_bootstrap_ci():
 
 def test_real_run_and_cli(tmp_path, plate_toml, monkeypatch, capsys):
     """A tiny real matrix (a 6-candidate plate), then `fixbench report DIR`."""
-    from fixbench.bench.runner import run_matrix
+    from fixbench.bench.running.runner import run_matrix
 
     monkeypatch.chdir(tmp_path)
     plate_toml()
@@ -490,7 +490,7 @@ def test_comparison_sections_deterministic(swept, tmp_path):
 def test_iqm_table_pools_positions_and_leaves_out_the_tails():
     from scipy.stats import trim_mean
 
-    from fixbench.bench.comparison import iqm_table
+    from fixbench.bench.reporting.comparison import iqm_table
     opt = [1.0, 2.0, 4.0, 8.0, 1.0, 1.0]
     refs = {("c", "m", 2, 6): {"per_task": opt}}
     ratios = {0: [1.1, 1.2, 1.0, 5.0, 1.3, 1.4], 1: [1.2, 1.1, 1.05, 1.0, 9.0, 1.5]}

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from fixbench.bench.matrix import find_matrix, load_matrix
+from fixbench.bench.running.matrix import find_matrix, load_matrix
 from fixbench.cases.problem import load_problem
 from fixbench.cases.spec import case_names, load_case_spec
 from fixbench.solvers import get

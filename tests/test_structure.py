@@ -78,7 +78,7 @@ def test_the_graph_sees_every_kind_of_import(graph):
     on an empty graph): the CLI imports its helpers at module level and the runner inside commands."""
     assert len(graph) > 60
     assert "fixbench.bench.cli_common" in graph["fixbench.bench.cli"]
-    assert "fixbench.bench.runner" in graph["fixbench.bench.cli"]  # inside the `run` command
+    assert "fixbench.bench.running.runner" in graph["fixbench.bench.cli"]  # inside the `run` command
     assert "fixbench.solvers" in graph["studies.small_benchmark"]  # `from fixbench.solvers import get`
     assert "studies.marl" in graph["studies.gpu_check"]
 
@@ -102,6 +102,24 @@ def test_the_library_does_not_import_the_studies_nor_the_cli(graph):
 
 def test_cli_common_is_a_leaf_of_the_harness(graph):
     assert not {m for m in graph["fixbench.bench.cli_common"] if layer(m) == 2}
+
+
+#: the harness's rooms, lowest first: a room imports its own and the ones before it; the modules at
+#: the top of ``fixbench.bench`` (the commands: cli, check, verify, tune; the BenchMARL task) may use all
+ROOMS = ("fixbench.bench.running", "fixbench.bench.reporting", "fixbench.bench.analysis")
+
+
+def room(mod: str) -> int | None:
+    return next((i for i, r in enumerate(ROOMS) if mod == r or mod.startswith(r + ".")), None)
+
+
+def test_the_harness_rooms_point_one_way(graph):
+    """running <- reporting <- analysis, and no room imports a module at the top of the harness."""
+    bench = {a: deps for a, deps in graph.items() if a.startswith("fixbench.bench.")}
+    wrong = sorted(f"{a} imports {b}" for a, deps in bench.items() if room(a) is not None
+                   for b in deps if b.startswith("fixbench.bench") and (room(b) is None or room(b) > room(a)))
+    assert not wrong, "; ".join(wrong)
+    assert {room(m) for m in bench} == {None, 0, 1, 2}  # every room has modules (else the check is empty)
 
 
 def test_a_circle_and_a_lazy_wrong_way_import_are_found(tmp_path):

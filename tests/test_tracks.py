@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.matrix import load_matrix
-from fixbench.bench.runner import run_matrix
-from fixbench.bench.store import load_results
+from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.runner import run_matrix
+from fixbench.bench.running.store import load_results
 
 TRACKS = """
 name = "tracks"

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.matrix import load_matrix
+from fixbench.bench.running.matrix import load_matrix
 from fixbench.bench.tune import matrix_entry, space, tune, tuning_table
 from fixbench.solvers import available
 

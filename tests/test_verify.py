@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.provenance import provenance
-from fixbench.bench.stats import prediction_interval
-from fixbench.bench.store import Store
+from fixbench.bench.reporting.stats import prediction_interval
+from fixbench.bench.running.provenance import provenance
+from fixbench.bench.running.store import Store
 from fixbench.bench.verify import code_path_note, sample
 
 MATRIX = """name = "tiny"
@@ -36,7 +36,7 @@ config = { episodes = 2, hidden = 8, batch = 4, threads = 1 }
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """A real run of 9 cells (random, greedy and nashq on 2 tasks of fan_small with 2 robots, seeds 0-2)."""
-    from fixbench.bench.runner import run_matrix
+    from fixbench.bench.running.runner import run_matrix
 
     root = tmp_path_factory.mktemp("verify")
     (root / "m.toml").write_text(MATRIX)

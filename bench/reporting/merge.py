@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.comparison import _with_case_defaults
-from fixbench.bench.store import load_results
-from fixbench.bench.tables import config_text
+from fixbench.bench.reporting.comparison import _with_case_defaults
+from fixbench.bench.reporting.tables import config_text
+from fixbench.bench.running.store import load_results
 from fixbench.cases.errors import CaseError
 
 NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
@@ -40,7 +40,7 @@ NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regre
            "reference_objective_m", "samples_per_task", "heldout_every", "n_scored_tasks")
 
 #: the committed runs ``--with NAME`` names (``results/NAME`` of the fixbench checkout)
-RESULTS = Path(__file__).resolve().parents[1] / "results"
+RESULTS = Path(__file__).resolve().parents[2] / "results"
 #: a cell's settings, in the order a difference is looked for (column, as a message names it)
 SETTINGS = (("case", "case"), ("material", "material"), ("agents", "agents"), ("n_tasks", "tasks"),
             ("mode", "mode"), ("heldout_every", "held-out every"), ("level", "budget"), ("seed", "seed"))

@@ -122,7 +122,7 @@ def probability_of_improvement(x, y, seed: int = BOOT_SEED) -> tuple[float, floa
 # rows, references and traces -------------------------------------------------------------------------
 
 def ref_key(row) -> tuple | None:
-    """The key of a row's regret reference in :func:`fixbench.bench.merge.load_references`:
+    """The key of a row's regret reference in :func:`fixbench.bench.reporting.merge.load_references`:
     (case, material, agents, n_tasks); None when the row lacks them (a failed cell)."""
     try:
         return (row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))

@@ -1,10 +1,10 @@
 """The comparison fixbench exists for: planners (MARL and classical) at equal samples.
 
-:func:`fixbench.bench.report.make_report` writes these as report sections:
+:func:`fixbench.bench.reporting.report.make_report` writes these as report sections:
 
     main_table          the README's main table: mean relative regret per case and mean rank over problems
     sweep_table         budget sweep: relative regret per case x planner x samples a task (its figure:
-                        :func:`fixbench.bench.figures.sweep_figure`)
+                        :func:`fixbench.bench.reporting.figures.sweep_figure`)
     heldout_table       held-out track: regret on the held-out tasks of learners that trained on the others,
                         beside planners that pay samples on every task, scored on the same tasks
     improvement_table   rliable's probability of improvement P(X < Y) between every ordered pair of planners
@@ -20,10 +20,11 @@ Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each
 (the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
 a learner's policy is never in the ranking, only in ``policy_table``.
 
-Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.cells`); every statistic leaves
+Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.running.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
-bootstraps (:func:`fixbench.bench.stats.mean_ci`, :func:`fixbench.bench.stats.probability_of_improvement`),
-so the same rows always give the same tables.
+bootstraps (:func:`fixbench.bench.reporting.stats.mean_ci`,
+:func:`fixbench.bench.reporting.stats.probability_of_improvement`), so the same rows always give the
+same tables.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement, ref_key
-from fixbench.bench.tables import ci_column, fmt, setting_text
+from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement, ref_key
+from fixbench.bench.reporting.tables import ci_column, fmt, setting_text
 
 #: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
 RANK_PROBLEM = ("case", "material", "seed", "agents", "n_tasks", "mode")

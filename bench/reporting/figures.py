@@ -21,8 +21,8 @@ import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator  # noqa: E402
 
-from fixbench.bench.plots import outline  # noqa: E402
-from fixbench.bench.stats import BOOT_SEED, TARGETS, on_grid, ref_key, runtime, sample_grid  # noqa: E402
+from fixbench.bench.reporting.plots import outline  # noqa: E402
+from fixbench.bench.reporting.stats import BOOT_SEED, TARGETS, on_grid, ref_key, runtime, sample_grid  # noqa: E402
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD  # noqa: E402
 
 #: relative regrets (%) below this are drawn at it on log axes (a regret of 0 has no logarithm)
@@ -120,7 +120,7 @@ def ecdf_figure(recs: list[dict], cases: list[str], colors: dict, targets=TARGET
 
 def profile_figure(taus, rho, colors, n_problems):
     """Dolan-More performance profiles: rho(tau) per planner label
-    (:func:`fixbench.bench.stats.performance_profile`)."""
+    (:func:`fixbench.bench.reporting.stats.performance_profile`)."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for lab in sorted(rho):
         ax.step(taus, rho[lab], where="post", color=colors[lab], label=lab)
@@ -312,7 +312,7 @@ def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
 
 def _problem_for_row(row):
     """The problem a row was run on (its case, material, agents and tasks), to draw its fields."""
-    from fixbench.bench.cells import problem_for
+    from fixbench.bench.running.cells import problem_for
 
     n_tasks = int(row["n_tasks"])
     p = problem_for(row["case"], row["material"], None, n_tasks)

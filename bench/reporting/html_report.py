@@ -3,7 +3,7 @@
 What ``fixbench report`` wrote into ``report.md`` (tables and figure captions), rendered by
 markdown-it-py (CommonMark with GFM tables), every figure embedded as a PNG data URI, and the run's
 provenance: the distinct records of its rows (fixbench, libraries, BLAS, CPU, threads, switches;
-:mod:`fixbench.bench.provenance`) with the cells of each, and its ``matrix.toml``. No script and no
+:mod:`fixbench.bench.running.provenance`) with the cells of each, and its ``matrix.toml``. No script and no
 request outside the file: it opens offline, sent on its own. The same report folder gives the same
 bytes.
 """

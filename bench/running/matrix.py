@@ -148,7 +148,7 @@ def _list(r: Reader, key: str, kind, default=...) -> list:
 
 
 #: the matrices shipped with the package (``fixbench run default`` works from any directory)
-SHIPPED = Path(__file__).parent / "matrices"
+SHIPPED = Path(__file__).parents[1] / "matrices"
 
 
 def shipped_matrices() -> list[str]:

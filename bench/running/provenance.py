@@ -74,7 +74,7 @@ def host_key(record: dict) -> str:
 def _commit() -> str:
     """The source commit of the fixbench being run when it runs from a git checkout ('+dirty' with
     local changes), else ''."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     if not (root / ".git").exists():
         return ""
     try:

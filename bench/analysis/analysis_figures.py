@@ -2,7 +2,7 @@
 best-response curves and person-by-person optima), the equilibrium landscape of the small cases,
 and the best max deformation against the number of robots.
 
-Each function returns a figure; the caller saves it (:func:`fixbench.bench.plots.save_png`).
+Each function returns a figure; the caller saves it (:func:`fixbench.bench.reporting.plots.save_png`).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize  # noqa: E402
 
-from fixbench.bench.equilibria import Landscape, pbp_mask  # noqa: E402
-from fixbench.bench.figures import REGRET_FLOOR_PCT, panel_grid  # noqa: E402
+from fixbench.bench.analysis.equilibria import Landscape, pbp_mask  # noqa: E402
+from fixbench.bench.reporting.figures import REGRET_FLOOR_PCT, panel_grid  # noqa: E402
 
 
 def figure3(table: np.ndarray, title: str):
@@ -86,7 +86,7 @@ def robots_figure(rows: list[dict], tolerance_m: float, title: str):
     """Best max deformation (um, log) against the number of robots: one line per task, or above 12
     tasks the median with a min-max bar; proven points filled, best-known ones open; lines join only
     consecutive agent counts (none is drawn across an unavailable one); the tolerance dashed.
-    ``rows``: :func:`fixbench.bench.robots.robots_table` records."""
+    ``rows``: :func:`fixbench.bench.analysis.robots.robots_table` records."""
     known = [r for r in rows if r["per_task_m"] is not None]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     if known:

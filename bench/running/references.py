@@ -38,10 +38,8 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 
-import click
 import numpy as np
 
-from fixbench.bench.cli_common import run_command
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.references import case_fingerprint, load_reference, write_reference
@@ -224,8 +222,8 @@ def update(run_dir, echo=print, folder=None) -> dict:
     import json
     from pathlib import Path
 
-    from fixbench.bench.matrix import task_subset
-    from fixbench.bench.store import load_results
+    from fixbench.bench.running.matrix import task_subset
+    from fixbench.bench.running.store import load_results
     from fixbench.cases.references import reference_path
     from fixbench.cases.spec import case_names
 
@@ -276,7 +274,7 @@ def update(run_dir, echo=print, folder=None) -> dict:
 
 
 class _Scored:
-    """What :func:`fixbench.bench.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
+    """What :func:`fixbench.bench.running.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
 
     def __init__(self, row: dict, trace: np.ndarray):
         import json
@@ -309,8 +307,8 @@ def rescore(run_dir, echo=print) -> int:
 
     import pandas as pd
 
-    from fixbench.bench.cells import metrics, shipped_reference
-    from fixbench.bench.store import Store, write_json_atomic
+    from fixbench.bench.running.cells import metrics, shipped_reference
+    from fixbench.bench.running.store import Store, write_json_atomic
 
     store = Store(run_dir)
     rows = store.finished()
@@ -407,29 +405,3 @@ def check_small(cases: tuple[str, ...] | None = None,
             out.append(rec)
     return out
 
-
-PROG = "python -m fixbench.bench.references"
-
-
-@click.command(context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("command", type=click.Choice(["check"]))
-@click.option("--json", "as_json", is_flag=True)
-def cli(command: str, as_json: bool) -> None:
-    """``python -m fixbench.bench.references check [--json]``: the portfolio against proven optima."""
-    import json
-
-    rows = check_small(echo=lambda r: None if as_json else print(r))
-    if as_json:
-        print(json.dumps(rows, indent=1))
-    else:
-        n, k = sum(r["tasks"] for r in rows), sum(r["reached"] for r in rows)
-        print(f"optimum reached on {k} of {n} tasks ({100 * k / n:.1f} %)")
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit code (2: a usage error)."""
-    return run_command(cli, argv, PROG)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

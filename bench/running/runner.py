@@ -3,7 +3,7 @@
 Crash-safe and resumable: every finished cell's row is written atomically as it arrives, and a
 rerun of the same command skips the cells that have a row (``--retry-failed`` reruns the ones
 whose row carries an error). The reference phase before the cells proves each problem's optimum
-position by position where it can (:mod:`fixbench.bench.proof`), with its progress on stderr and
+position by position where it can (:mod:`fixbench.bench.running.proof`), with its progress on stderr and
 every proven position kept in the run directory: a rerun proves only the positions missing. A
 planner that raises or runs past ``--cell-timeout`` becomes a row with its error; the matrix goes on.
 """
@@ -20,10 +20,10 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from fixbench.bench.cells import base_row, enumerates, problem_for, reference_key
-from fixbench.bench.matrix import find_matrix, load_matrix
-from fixbench.bench.proof import Proof
-from fixbench.bench.store import Store, write_json_atomic
+from fixbench.bench.running.cells import base_row, enumerates, problem_for, reference_key
+from fixbench.bench.running.matrix import find_matrix, load_matrix
+from fixbench.bench.running.proof import Proof
+from fixbench.bench.running.store import Store, write_json_atomic
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_text_atomic
@@ -34,11 +34,11 @@ def make_executor(kind: str, workers: int | None, timeout: float | None, address
     """The executor of ``kind``; ``env``: extra environment variables of its workers."""
     if kind == "ray":
         try:
-            from fixbench.bench.executors import RayExecutor
+            from fixbench.bench.running.executors import RayExecutor
         except ImportError:  # pragma: no cover - ray is an optional extra
             raise CaseError("--executor", "ray", "Ray is not installed (pip install 'fixbench[ray]')") from None
         return RayExecutor(workers, timeout, address, env)
-    from fixbench.bench.executors import LocalExecutor
+    from fixbench.bench.running.executors import LocalExecutor
 
     return LocalExecutor(workers, timeout, env=env)
 
@@ -174,7 +174,7 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
 def _reference_phase(store: Store, todo: list, modes: tuple[str, ...], proof_limit: int | None, ex,
                      opts: _RunOptions) -> dict[str, dict]:
     """The regret reference of every problem of ``todo``: read where ``DIR/reference/KEY.json`` holds
-    it; proven position by position where the positions can be enumerated (:mod:`fixbench.bench.proof`:
+    it; proven position by position where the positions can be enumerated (:mod:`fixbench.bench.running.proof`:
     progress on stderr, records in the run directory, a rerun proves only the positions missing); else
     one job a problem (``exact``'s MILP or the shipped reference). Returns {key: reference}."""
     references: dict[str, dict] = {}

@@ -1,6 +1,6 @@
 """Executors: run jobs (references and cells) on local processes or on a Ray cluster.
 
-Both call :func:`fixbench.bench.cells.execute` on every job and hand each result to the driver as soon as
+Both call :func:`fixbench.bench.running.cells.execute` on every job and hand each result to the driver as soon as
 it is done, so results are identical whichever runs them (for deterministic planners). A job that
 exceeds the timeout is stopped and comes back as an error; so does a worker that dies.
 """
@@ -15,7 +15,7 @@ from multiprocessing.connection import wait
 
 import psutil
 
-from fixbench.bench.cells import execute
+from fixbench.bench.running.cells import execute
 
 Job = tuple  # ("reference", args) | ("position", (position,)) | ("cell", (cell, reference))
 #: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.matrix import Cell, task_subset
-from fixbench.bench.provenance import provenance
-from fixbench.bench.store import SCHEMA_VERSION, TRACE_COLUMNS
+from fixbench.bench.running.matrix import Cell, task_subset
+from fixbench.bench.running.provenance import provenance
+from fixbench.bench.running.store import SCHEMA_VERSION, TRACE_COLUMNS
 from fixbench.cases.problem import Problem, cached_problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
 from fixbench.cases.spec import load_case_spec
@@ -83,13 +83,13 @@ def enumerates(p: Problem, proof_limit: int | None) -> bool:
 def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
                       modes: tuple[str, ...], proof_limit: int | None = None) -> dict:
     """The regret reference of a problem in one job (the proof phase enumerates a problem position by
-    position instead where it can: :func:`prove_position`, :mod:`fixbench.bench.proof`): the ``exact``
+    position instead where it can: :func:`prove_position`, :mod:`fixbench.bench.running.proof`): the ``exact``
     planner's optimum (its MILP: proven, or best known with its gap); where ``exact`` refuses (too
     large), or the problem has more than ``proof_limit`` layouts a position (the matrix's cap), the
     shipped catalog reference of the case (:mod:`fixbench.cases.references`: the portfolio's best-known
     layouts), restricted to the problem's tasks. ``source`` says which was used; ``case_fingerprint``
     which case file, material and agent count it was computed on (merged reports compare it:
-    :mod:`fixbench.bench.merge`)."""
+    :mod:`fixbench.bench.reporting.merge`)."""
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
@@ -143,7 +143,7 @@ def prove_position(pos: Position) -> dict:
     """The proven optimum of one position: ``exact``'s enumeration on a counted evaluator open on that
     position alone (the layout of least max deformation, first in enumeration order on a tie), measured
     as :meth:`~fixbench.solvers.base.Planner.solve` scores it; with ``task`` None the shared optimum.
-    Returns the proof record (:mod:`fixbench.bench.proof`), or ``{"position", "error"}``; never raises.
+    Returns the proof record (:mod:`fixbench.bench.running.proof`), or ``{"position", "error"}``; never raises.
     ``exact``'s own progress bar is kept off the terminal: the driver shows the phase's."""
     from fixbench.solvers.base import TracedEvaluator
     from fixbench.solvers.registry import get

@@ -1,6 +1,6 @@
 """``fixbench report``: tables and figures of a run directory (docs/reporting.md).
 
-Everything is read back from the results store (:mod:`fixbench.bench.store`): rows, anytime traces,
+Everything is read back from the results store (:mod:`fixbench.bench.running.store`): rows, anytime traces,
 learners' training curves and the regret references. The report folder gets
 
     report.md                   the tables (Markdown) and the figures (relative links)
@@ -15,14 +15,14 @@ Dolan-More performance profiles. Cells whose row carries an error are counted in
 out of every statistic. The bootstrap generator has a fixed seed and PDFs carry no creation date, so
 the same run directory always gives the same report.
 
-The comparison fixbench exists for (planners at equal samples) comes from :mod:`fixbench.bench.comparison`:
+The comparison fixbench exists for (planners at equal samples) comes from :mod:`fixbench.bench.reporting.comparison`:
 the main table (``main``: regret per case, mean rank over problems), the budget sweep (``sweep``, table
 and figure), the held-out track (``heldout``) and rliable's probability of improvement
 (``improvement``); a section the run has no rows for is skipped with its reason.
 
-This module reads the run and writes the folder; the numbers come from :mod:`fixbench.bench.stats`,
-the tables from :mod:`fixbench.bench.tables` and :mod:`fixbench.bench.comparison`, the figures from
-:mod:`fixbench.bench.figures`.
+This module reads the run and writes the folder; the numbers come from :mod:`fixbench.bench.reporting.stats`,
+the tables from :mod:`fixbench.bench.reporting.tables` and :mod:`fixbench.bench.reporting.comparison`, the figures from
+:mod:`fixbench.bench.reporting.figures`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from fixbench.bench.comparison import (  # noqa: E402
+from fixbench.bench.reporting.comparison import (  # noqa: E402
     headline_table,
     heldout_table,
     improvement_table,
@@ -57,7 +57,7 @@ from fixbench.bench.comparison import (  # noqa: E402
     sweep_table,
     versus_best_table,
 )
-from fixbench.bench.figures import (  # noqa: E402
+from fixbench.bench.reporting.figures import (  # noqa: E402
     REFERENCE_PLANNER,
     anytime_figure,
     anytime_records,
@@ -70,12 +70,10 @@ from fixbench.bench.figures import (  # noqa: E402
     sweep_figure,
     violin_figure,
 )
-from fixbench.bench.html_report import write_html  # noqa: E402
-from fixbench.bench.merge import Runs, load_runs, run_names  # noqa: E402
-from fixbench.bench.provenance import host_key  # noqa: E402
-from fixbench.bench.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
-from fixbench.bench.store import load_curves, load_traces  # noqa: E402
-from fixbench.bench.tables import (  # noqa: E402
+from fixbench.bench.reporting.html_report import write_html  # noqa: E402
+from fixbench.bench.reporting.merge import Runs, load_runs, run_names  # noqa: E402
+from fixbench.bench.reporting.stats import N_BOOT, TARGETS, gap_traces, optima, performance_profile  # noqa: E402
+from fixbench.bench.reporting.tables import (  # noqa: E402
     group_keys,
     profile_table,
     reference_table,
@@ -83,6 +81,8 @@ from fixbench.bench.tables import (  # noqa: E402
     show_summary,
     summary_table,
 )
+from fixbench.bench.running.provenance import host_key  # noqa: E402
+from fixbench.bench.running.store import load_curves, load_traces  # noqa: E402
 from fixbench.cases.references import check_sources  # noqa: E402
 from fixbench.solvers.registry import listing  # noqa: E402
 
@@ -211,7 +211,7 @@ def _main_section(w: _Writer, rows: pd.DataFrame) -> None:
 
 
 def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
-    """The budget sweep, held-out and probability-of-improvement tables (:mod:`fixbench.bench.comparison`),
+    """The budget sweep, held-out and probability-of-improvement tables (:mod:`fixbench.bench.reporting.comparison`),
     each skipped with its reason when the run lacks its rows. Returns the sweep table, whose figure
     comes with the figures."""
     sweep = sweep_table(rows)
@@ -267,7 +267,7 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
 def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | None = None,
                 fields: bool = True) -> dict:
     """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``); several run
-    directories of one protocol make one merged report (:mod:`fixbench.bench.merge`; default ``out``:
+    directories of one protocol make one merged report (:mod:`fixbench.bench.reporting.merge`; default ``out``:
     the first one's ``report``).
 
     Returns ``{"report": path, "html": index.html, "tables": {name: csv}, "figures": {name: png},

@@ -3,7 +3,7 @@
 ``summary_table`` (per case and planner: counts, means and IQMs with bootstrap CIs, rank),
 ``reference_table`` (the regret references) and ``profile_table`` (the performance profile's
 summary); the comparison tables (main, sweep, held-out, probability of improvement) are in
-:mod:`fixbench.bench.comparison`. Each table comes as numbers (for CSV) and formatted by a
+:mod:`fixbench.bench.reporting.comparison`. Each table comes as numbers (for CSV) and formatted by a
 ``show_*`` function (for Markdown and LaTeX).
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.stats import SETTINGS, bootstrap_ci, iqm
+from fixbench.bench.reporting.stats import SETTINGS, bootstrap_ci, iqm
 from fixbench.cases.errors import CaseError
 
 # formatting ------------------------------------------------------------------------------------------
@@ -142,7 +142,7 @@ def reference_table(refs: dict) -> pd.DataFrame:
 
 
 def profile_table(ratios: pd.DataFrame, rho: dict) -> pd.DataFrame:
-    """The performance profile's summary (:func:`fixbench.bench.stats.performance_profile`): per planner,
+    """The performance profile's summary (:func:`fixbench.bench.reporting.stats.performance_profile`): per planner,
     the fraction of problems on which it is the best, within 1.1 and 2 of the best, failed or missing."""
     return pd.DataFrame({"planner": list(rho),
                          "problems": len(ratios),

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fixbench.bench.equilibria import enumeration_chunks
+from fixbench.bench.analysis.equilibria import enumeration_chunks
 from fixbench.cases.problem import load_problem
 from fixbench.cases.references import load_reference
 

@@ -7,7 +7,7 @@ Layout of a run directory::
     DIR/traces/<cell id>.parquet    anytime trace: TRACE_COLUMNS (task, task_samples, samples, best)
     DIR/curves/<cell id>.parquet    training curves of learners: curve, index, value (long form)
     DIR/reference/<key>.json        regret reference per (case, material, agents, tasks)
-    DIR/reference/<key>.proof.jsonl its positions as the reference phase proved them (bench/proof.py)
+    DIR/reference/<key>.proof.jsonl its positions as the reference phase proved them (bench/running/proof.py)
 
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
@@ -89,7 +89,7 @@ ROW_SCHEMA = {
     "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
     "provenance": "where and with what the row was made (JSON): fixbench version and source commit, Python, "
                   "library versions, numpy's BLAS, CPU model and cores, threads, environment switches "
-                  "(bench/provenance.py)",
+                  "(bench/running/provenance.py)",
 }
 
 

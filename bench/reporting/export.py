@@ -1,9 +1,9 @@
 """``fixbench export``: a run directory in the formats other benchmarking tools read.
 
-Why: fixbench's own report (:mod:`fixbench.bench.report`) is one view of a run; IOHanalyzer (fixed-target
+Why: fixbench's own report (:mod:`fixbench.bench.reporting.report`) is one view of a run; IOHanalyzer (fixed-target
 and fixed-budget runtime statistics, ERT, ECDFs), marl-eval (BenchMARL's rliable-based aggregation)
 and any spreadsheet or R session are others. Everything is read back through the results store
-(:mod:`fixbench.bench.store`: rows, anytime traces, learners' curves); nothing is recomputed.
+(:mod:`fixbench.bench.running.store`: rows, anytime traces, learners' curves); nothing is recomputed.
 
 Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" below):
 
@@ -62,7 +62,7 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
     One JSON file, ``OUT/marl_eval.json``, in marl-eval's raw-data layout: environment (the case)
     -> task (``<material>-a<agents>-t<n_tasks>-<mode>``) -> algorithm (label) -> run
     (``seed_<seed>``) -> ``step_<k>`` entries and ``absolute_metrics``, every metric a list of
-    values. Steps are the learners' training curves (:func:`fixbench.bench.store.load_curves`)
+    values. Steps are the learners' training curves (:func:`fixbench.bench.running.store.load_curves`)
     that have one value an episode (curves named ``episode_*``): ``step_<k>`` holds the value of
     episode k and ``step_count``, the samples (environment steps) spent by the end of that episode.
     Curves with other lengths (per step, per task, per agent) are left out. ``absolute_metrics``
@@ -101,8 +101,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.store import ROW_SCHEMA, TRACE_COLUMNS, load_curves, load_results, load_traces
-from fixbench.bench.tables import config_text
+from fixbench.bench.reporting.tables import config_text
+from fixbench.bench.running.store import ROW_SCHEMA, TRACE_COLUMNS, load_curves, load_results, load_traces
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
