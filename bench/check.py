@@ -19,7 +19,7 @@ Five checks, each a section of the result (:func:`check_case`):
   beyond it: the layouts a planner meets then lie outside the model (the best random layout and
   the worst are reported too).
 - **reference**: layouts a position (the joint size), what a matrix's reference phase costs
-  (:func:`fixbench.bench.running.cells.compute_reference`: ``exact``'s enumeration up to its
+  (:func:`fixbench.bench.running.references.compute_reference`: ``exact``'s enumeration up to its
   ``max_enumeration``, else its MILP up to ``max_milp_columns``, else nothing) and what the
   reference portfolio of ``fixbench references build`` costs (:class:`~fixbench.bench.running.references.Portfolio`,
   an upper bound of its samples; with the ``exact`` proof where joint size x tasks is at most

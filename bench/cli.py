@@ -282,7 +282,9 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
     cls = get(planner_name)
     planner = cls(**apply_sets(cls.Config, sets, cls.name))
     problem = _problem(case, material, agents, fixtures_per_agent)
-    train = None if heldout_every is None else list(range(0, problem.n_tasks, heldout_every))
+    from fixbench.bench.running.keys import split
+
+    train = None if heldout_every is None else split(problem.n_tasks, heldout_every)[0]
     result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
     if plot:
         from fixbench.bench.reporting.plots import anytime_plot

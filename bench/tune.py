@@ -64,7 +64,8 @@ def _suggest(trial, key: str, s: tuple):
 def _tuning_problem(case: str) -> tuple:
     """A tuning case's problem and its mean proven optimum (``exact``: minutes of CPU, so computed once
     a process)."""
-    from fixbench.bench.running.cells import compute_reference, problem_for
+    from fixbench.bench.running.cells import problem_for
+    from fixbench.bench.running.references import compute_reference
 
     ref = compute_reference(case, None, None, None, ("per-task",))
     if ref["error"] or ref["per_task"] is None:

@@ -36,7 +36,7 @@ import pandas as pd
 from fixbench.bench.reporting.merge import load_references, load_rows
 from fixbench.bench.reporting.report import check_scored_references
 from fixbench.bench.reporting.stats import LEVEL, prediction_interval
-from fixbench.bench.running.cells import reference_key
+from fixbench.bench.running.keys import reference_key
 from fixbench.bench.running.matrix import load_matrix
 from fixbench.bench.running.provenance import provenance
 from fixbench.bench.running.runner import make_executor, selection, worker_env
@@ -158,14 +158,12 @@ def _same(column: pd.Series, value) -> pd.Series:
     return column.isna() if isinstance(value, float) and math.isnan(value) else column == value
 
 
-def code_path_note(old: str | None, new: str | None) -> str:
-    """Where this host's code path differs from the one a row records (``CODE_PATH``), or why it is
-    unknown; '' when they are the same."""
-    if not isinstance(old, str):
+def code_path_note(old: dict | None, new: dict | None) -> str:
+    """Where this host's code path differs from the one a row records (``CODE_PATH``; rows' provenance
+    records), or why it is unknown; '' when they are the same."""
+    if not isinstance(old, dict):
         return "the row records no provenance"
-    if not isinstance(new, str):
-        new = json.dumps(provenance())
-    a, b = json.loads(old), json.loads(new)
+    a, b = old, (new if isinstance(new, dict) else provenance())
     diffs = []
     for key in CODE_PATH:
         x, y = a.get(key), b.get(key)

@@ -1,10 +1,12 @@
 """The rounds loop of the contextual bandits on a model shared by all tasks (``surrogate-ts``, ``gp-ucb``).
 
-Read top to bottom: the shared hyper-parameters, what every model uses (pad coordinates, positions
-in the action sets, repeats moved, the per-agent best-response sweep), the run (data, round 0,
-rounds, held-out tasks, info), the planner. A planner specialises :class:`BanditRun` with its
-model: :meth:`~BanditRun.fit` at the start of a round, :meth:`~BanditRun.propose` a round's layouts
-task by task, and :meth:`~BanditRun.act_held_out` on the tasks it may not sample.
+Read top to bottom: the shared hyper-parameters, what every model uses (positions in the action
+sets, repeats moved), the run (data, round 0, rounds, held-out
+tasks, info), the planner. The models' inputs come from :mod:`fixbench.solvers.encoding`: the
+task features scaled by their spread (``BanditRun.features``) and the pad coordinates in [-1, 1].
+A planner specialises :class:`BanditRun` with its model: :meth:`~BanditRun.fit` at the start of a
+round, :meth:`~BanditRun.propose` a round's layouts task by task, and :meth:`~BanditRun.act_held_out`
+on the tasks it may not sample.
 
 The data: every evaluated (task, layout) and y = log(max |u|) of it (deformation varies over orders
 of magnitude between a good and a bad layout, hence the log), in the order evaluated, with the rows
@@ -38,7 +40,7 @@ import contextlib
 import math
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -50,13 +52,15 @@ from fixbench.solvers.base import (
     Planner,
     PlannerConfig,
     TracedEvaluator,
+    Training,
     at_least,
     random_layouts,
     require_budget,
     split_budget,
 )
+from fixbench.solvers.encoding import task_features
 from fixbench.solvers.torch_run import torch_run
-from fixbench.solvers.transfer import nearest_tasks, scaled_features, warm_layouts
+from fixbench.solvers.transfer import nearest_tasks, warm_layouts
 
 
 # ---------------------------------------------------------------------------------------------
@@ -98,16 +102,8 @@ class BanditConfig(PlannerConfig):
 
 
 # ---------------------------------------------------------------------------------------------
-# inputs, repeats, best response
+# positions, repeats
 # ---------------------------------------------------------------------------------------------
-def pad_coordinates(problem: Problem) -> np.ndarray:
-    """(n_options, 2 m) pad coordinates of every action, in [-1, 1] of the candidates' bounding box."""
-    lo, hi = problem.candidates.min(axis=0), problem.candidates.max(axis=0)
-    span = np.where(hi > lo, hi - lo, 1.0)
-    n_opt = len(problem.points)
-    return (2 * (problem.points.reshape(n_opt, -1, 2) - lo) / span - 1).reshape(n_opt, -1)
-
-
 def set_positions(problem: Problem) -> np.ndarray:
     """Global action -> its position in its agent's set."""
     pos = np.zeros(len(problem.points), dtype=np.int64)
@@ -134,27 +130,6 @@ def move_repeats(layouts: np.ndarray, done: set, batch: set, sets: list[np.ndarr
     return out, moved
 
 
-def gauss_seidel(local: torch.Tensor, n_agents: int, max_sweeps: int,
-                 step: Callable[[int, torch.Tensor, torch.Tensor], torch.Tensor]) -> int:
-    """Per-agent best response of every query, in place on ``local`` (Q, n_agents) positions in the
-    agents' sets (Gauss-Seidel coordinate descent): each agent in turn takes ``step(i, active, cur)``,
-    its best action for the ``active`` queries (indices) whose positions are ``cur``, the others fixed;
-    a query stops after a sweep over the agents that changed nothing, every query after ``max_sweeps``.
-    Returns the sweeps summed over the queries."""
-    active = torch.arange(len(local))
-    sweeps, total = 0, 0
-    while len(active) and sweeps < max_sweeps:
-        sweeps, total = sweeps + 1, total + len(active)
-        changed = torch.zeros(len(active), dtype=torch.bool)
-        for i in range(n_agents):
-            cur = local[active]
-            best = step(i, active, cur)
-            changed |= best != cur[:, i]
-            local[active, i] = best
-        active = active[changed]
-    return total
-
-
 # ---------------------------------------------------------------------------------------------
 # the run: data, round 0, rounds, held-out tasks, info
 # ---------------------------------------------------------------------------------------------
@@ -168,7 +143,7 @@ class BanditRun(ABC):
     def __init__(self, cfg: BanditConfig, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator):
         self.cfg, self.problem, self.ev, self.rng = cfg, problem, ev, rng
         self.n, self.sets, self.ids = problem.n_agents, problem.action_sets, ev.tasks
-        self.features = scaled_features(problem)
+        self.features = task_features(problem, "spread")
         self.pos = set_positions(problem)
         self.shares = np.array(split_budget(ev.budget, len(self.ids), cfg.samples_per_task))
         cap = int(self.shares.sum())  # the data: each evaluated (task, layout) and its y, in the order evaluated
@@ -180,6 +155,8 @@ class BanditRun(ABC):
         self.seen = {int(t): set() for t in self.ids}
         self.time = dict.fromkeys(self.clocks, 0.0)
         self.rounds = self.batch = self.moved = 0
+        self.round_samples: list[int] = []  # samples spent by the end of round 0, 1, ...
+        self.round_best: list[float] = []  # mean best max |u| (m) over the training tasks sampled by then
 
     # --- what a model adds ------------------------------------------------------------------
     @abstractmethod
@@ -199,6 +176,10 @@ class BanditRun(ABC):
     def model_info(self) -> dict:
         """The model's own figures for the info, listed after ``batch``."""
         return {}
+
+    def model_curves(self, training: Training) -> Training:
+        """``training`` with the model's own curves declared in it (its fit loss, ...)."""
+        return training
 
     # --- what every model uses ----------------------------------------------------------------
     @contextlib.contextmanager
@@ -250,13 +231,14 @@ class BanditRun(ABC):
         return starts[np.sort(first)]
 
     # --- the loop -----------------------------------------------------------------------------
-    def run(self) -> tuple[np.ndarray, dict]:
-        """Round 0, the rounds, the held-out tasks: (layouts, info)."""
+    def run(self) -> tuple[np.ndarray, dict, Training]:
+        """Round 0, the rounds, the held-out tasks: (layouts, info, training)."""
         t_start = time.perf_counter()
         cfg, ids = self.cfg, self.ids
         for t, s in zip(ids.tolist(), self.shares.tolist()):  # round 0: uniform random layouts seed the model
             if m := min(cfg.initial_random, s):
                 self.evaluate(t, self.unrepeated(t, random_layouts(self.problem, self.rng, m)))
+        self.end_round()
         left = self.shares - np.minimum(cfg.initial_random, self.shares)
         self.batch = max(cfg.batch, math.ceil(int(left.max(initial=0)) / max(cfg.max_rounds, 1)))
         while left.any():
@@ -266,13 +248,27 @@ class BanditRun(ABC):
             for task, layouts in self.propose(ids[counts > 0], counts[counts > 0]):
                 self.evaluate(task, layouts)
             left -= counts
+            self.end_round()
         layouts = self.ev.best_layout.copy()
         held = np.setdiff1d(np.arange(self.problem.n_tasks), ids)
         held_sweeps = 0
         if len(held):
             src = [nearest_tasks(self.problem, ids, int(t), 1, self.features)[0] for t in held]
             layouts[held], held_sweeps = self.act_held_out(held, self.ev.best_layout[src])
-        return layouts, self.info(held_sweeps, t_start)
+        return layouts, self.info(held_sweeps, t_start), self.training()
+
+    def end_round(self) -> None:
+        """Record the round just ended: the samples spent and the mean best max |u| so far (NaN before any)."""
+        best = self.ev.best[self.ids]
+        seen = np.isfinite(best)
+        self.round_samples.append(self.ev.samples)
+        self.round_best.append(float(best[seen].mean()) if seen.any() else math.nan)
+
+    def training(self) -> Training:
+        """The run's curves: ``round_samples`` and ``round_best_mean_u`` (m) a round (round 0 first), then
+        the model's own (:meth:`model_curves`)."""
+        return self.model_curves(Training().add("round", round_samples=self.round_samples,
+                                                round_best_mean_u=self.round_best))
 
     def info(self, held_sweeps: int, t_start: float) -> dict:
         per_task = self.ev.task_samples[self.ids]

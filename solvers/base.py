@@ -194,6 +194,50 @@ class TracedEvaluator(Evaluator):
         return worst, soft
 
 
+#: what a training curve's index counts (:class:`Curve`): env steps (one counted sample each), episodes
+#: (passes over the training tasks), rounds (a bandit's), fits (of a bandit's model), batches (a rollout
+#: and its updates), updates (gradient steps)
+CURVE_UNITS = ("step", "episode", "round", "fit", "batch", "update")
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One training curve as its learner declares it: ``values[i]`` after the (i + 1)-th ``unit`` of the
+    run (:data:`CURVE_UNITS`); NaN where there is no value (an episode without an update)."""
+
+    unit: str
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.unit not in CURVE_UNITS:
+            raise PlannerError(f"curve unit '{self.unit}' is not one of {', '.join(CURVE_UNITS)}")
+        raw = np.asarray(self.values, dtype=object)
+        if raw.ndim != 1:
+            raise PlannerError(f"a curve is one value a {self.unit}; got shape {raw.shape}")
+        object.__setattr__(self, "values", np.array([math.nan if v is None else v for v in raw], dtype=float))
+
+
+@dataclass
+class Training:
+    """A learner's training record (``PlanResult.training``): its curves by name, each with its unit,
+    declared by the learner, never guessed from ``info``; a per-agent curve names its agent
+    (``td_loss/agent0``). The harness stores every curve (bench/running/cells.py); Figure 4 draws those
+    it knows by name (bench/reporting/figures.py ``FIGURE4_CURVES``)."""
+
+    curves: dict[str, Curve] = field(default_factory=dict)
+
+    def add(self, unit: str, **curves) -> Training:
+        """Declare ``curves`` (name=values), all indexed by ``unit``; returns the record, to chain."""
+        for name, values in curves.items():
+            if name in self.curves:
+                raise PlannerError(f"curve '{name}' declared twice")
+            self.curves[name] = Curve(unit, values)
+        return self
+
+    def values(self, name: str) -> np.ndarray:
+        return self.curves[name].values
+
+
 @dataclass
 class PlanResult:
     """What a planner run produced, scored on the true (uncounted) oracle afterwards."""
@@ -218,6 +262,7 @@ class PlanResult:
     policy_layouts: np.ndarray | None = None  # (n_tasks, n_agents) what the planner returned, where that
     #: is not its incumbent (a learner's greedy policy); scored beside it, never in the objective
     policy_max_deformation: np.ndarray | None = None  # (n_tasks,) metres, of policy_layouts
+    training: Training | None = None  # a learner's training curves (None: a planner that does not learn)
 
     @property
     def scored_tasks(self) -> np.ndarray:
@@ -247,6 +292,8 @@ class PlanResult:
                 "worst_max_deformation_m": float(self.max_deformation.max()),
                 "mean_reward": float(self.reward.mean()), "policy_objective_m": self.policy_objective,
                 "config": self.config, "info": self.info,
+                "curves": None if self.training is None else {
+                    name: {"unit": c.unit, "values": c.values.tolist()} for name, c in self.training.curves.items()},
                 "per_task": [{"task": t, "layout": self.layouts[t].tolist(),
                               **({} if self.pads is None else {"pads": self.pads[t].tolist()}),
                               "max_deformation_m": float(self.max_deformation[t]),
@@ -301,8 +348,10 @@ class Planner(ABC):
 
     @abstractmethod
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator,
-             mode: str) -> tuple[np.ndarray, dict]:
-        """Return (layouts, info): layouts is (n_tasks, n_agents), all rows equal in shared mode.
+             mode: str) -> tuple[np.ndarray, dict] | tuple[np.ndarray, dict, Training]:
+        """Return (layouts, info): layouts is (n_tasks, n_agents), all rows equal in shared mode; info the
+        run's own figures (scalars and short lists). A learner returns (layouts, info, training), its
+        curves declared in a :class:`Training`.
 
         Learn only through ``ev`` (every evaluation is counted); draw randomness only from ``rng``.
         """
@@ -352,7 +401,7 @@ class Planner(ABC):
             if len(held) == 0:
                 raise PlannerError("the held-out track needs at least one task outside the training tasks")
         ev = TracedEvaluator(problem, budget, train_tasks)  # refuses a budget that is not positive
-        layouts, info = self.plan(problem, ev, np.random.default_rng(seed), mode)
+        layouts, info, training = (*self.plan(problem, ev, np.random.default_rng(seed), mode), None)[:3]
         layouts = np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents)
         if held is not None:
             layouts, filled = fill_held_out(problem, layouts, ev.tasks)
@@ -370,7 +419,8 @@ class Planner(ABC):
                           problem.spec.material.name, mode, seed, budget, ev.samples, layouts,
                           scored.max_u, scored.reward_gaussian,
                           np.array(ev.trace, dtype=float).reshape(-1, 4), info, scored.reward_bell, held,
-                          None if problem.spec.effector.simple else problem.pads(layouts), policy, policy_u)
+                          None if problem.spec.effector.simple else problem.pads(layouts), policy, policy_u,
+                          training)
 
 
 def incumbent_layouts(ev: TracedEvaluator, returned: np.ndarray, mode: str) -> np.ndarray:

@@ -13,8 +13,9 @@ pending observations); Hvarfner, Hellsten and Nardi, ICML 2024, "Vanilla Bayesia
 Performs Great in High Dimensions" (the dimension-scaled priors of BoTorch's default GP, used here).
 
 The model. One GP of y = log(max |u|) on x = [the task's features
-(:func:`fixbench.solvers.transfer.scaled_features`), the layout's pad coordinates (``Problem.points``
-of each agent's action, in agent order, scaled to [-1, 1] in the candidates' bounding box)]. The
+(:func:`fixbench.solvers.encoding.task_features`, scaled by their spread), the layout's pad
+coordinates (``Problem.points`` of each agent's action, in agent order, scaled to [-1, 1] in the
+candidates' bounding box: :func:`fixbench.solvers.encoding.pad_coordinates`)]. The
 task is the bandit's context, the layout its action. The kernel is a product (CGP-UCB's choice):
 Matern-5/2 with ARD over the features times Matern-5/2 with ARD over the pad coordinates (one
 length scale per coordinate of every agent), each on its own inputs (``active_dims``), no output
@@ -102,8 +103,10 @@ from gpytorch.means import ZeroMean
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit, gauss_seidel, pad_coordinates
+from fixbench.solvers import descent
+from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit
 from fixbench.solvers.base import TracedEvaluator, at_least, random_layouts, require
+from fixbench.solvers.encoding import pad_coordinates
 from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import nearest_tasks
 
@@ -262,32 +265,34 @@ class LocalGP:
 
     def descend(self, loc: np.ndarray, cb: float, max_sweeps: int, screen: int,
                 subset: int) -> tuple[np.ndarray, dict]:
-        """Gauss-Seidel descent of mu - cb sigma (``cb`` 0: the mean alone) from every row of ``loc``.
+        """Descent of mu - cb sigma (``cb`` 0: the mean alone) from every row of ``loc``: per-agent best
+        response (:func:`fixbench.solvers.descent.descend`, agents in order, each to its lowest bound, a
+        start stopping after a sweep that moved none).
 
         Returns (final positions, pool): the pool holds every layout scored exactly on the way
         (``loc``, ``mu``, ``var``), the sweeps summed over the starts, and the counts of actions
         scored and scored exactly.
         """
-        loc = torch.from_numpy(loc.copy())
         found, counts = {"loc": [], "mu": [], "var": []}, {"scored": 0, "exact": 0}
-        sweeps = gauss_seidel(loc, len(self.E), max_sweeps,
-                              lambda i, active, cur: self.step(i, cur, cb, screen, subset, found, counts))
+        out = descent.descend(lambda i, rows, cur: self.step(i, torch.from_numpy(cur), cb, screen, subset, found,
+                                                             counts),
+                              loc, range(len(self.E)), max_sweeps=max_sweeps, ties="first", stop="sweep")
         pool = {key: torch.cat(v) for key, v in found.items()} if found["loc"] else found
-        return loc.numpy(), {**pool, "sweeps": sweeps, **counts}
+        return out.layout, {**pool, "sweeps": int(out.sweeps.sum()), **counts}
 
     def step(self, i: int, cur: torch.Tensor, cb: float, screen: int, subset: int, found: dict,
              counts: dict) -> torch.Tensor:
-        """Agent i's action of lowest bound (``cb`` 0: mean) for every query, the others at ``cur`` (Q,
-        n_agents): the ``screen`` lowest lower bounds scored exactly, then every action whose lower bound
-        is below the best exact score. The layouts scored exactly join ``found``; ``counts`` adds the
-        actions scored and scored exactly."""
+        """Agent i's bound (``cb`` 0: mean) of every action (Q, actions) for every query, the others at
+        ``cur`` (Q, n_agents): the ``screen`` lowest lower bounds scored exactly, then every action whose
+        lower bound is below the best exact score; the rest, pruned, ``inf`` (the lowest is exact). The
+        layouts scored exactly join ``found``; ``counts`` adds the actions scored and scored exactly."""
         base = sum(self.E[j][cur[:, j]] for j in range(len(self.E)) if j != i)
         base = base if torch.is_tensor(base) else torch.zeros(len(cur), self.n, dtype=F64)
         k = matern52_(base[:, None, :] + self.E[i][None]).mul_(self.kf)  # (Q, actions, n)
         mu = k @ self.alpha
         counts["scored"] += mu.numel()
         if cb == 0:
-            return torch.argmin(mu, dim=1)
+            return mu
         lb = mu - cb * torch.sqrt(self.variance_bound(k, cur[:, i], subset))
         order = torch.sort(lb, dim=1, stable=True).indices
         score = torch.full_like(mu, math.inf)
@@ -307,7 +312,7 @@ class LocalGP:
             found["loc"].append(rows_loc)
             found["mu"].append(m)
             found["var"].append(var)
-        return torch.argmin(score, dim=1)
+        return score
 
     def variance_bound(self, k: torch.Tensor, cur: torch.Tensor, subset: int) -> torch.Tensor:
         """Upper bounds (Q, actions) of the posterior variance from k(x, window) (Q, actions, n).
@@ -375,7 +380,7 @@ class UCBRun(BanditRun):
         self.cb = math.sqrt(cfg.beta)
         # inputs: scaled features; pad coordinates in [-1, 1] of the candidates' bounding box
         self.feats = torch.tensor(self.features, dtype=F64)
-        self.pts = torch.tensor(pad_coordinates(problem), dtype=F64)
+        self.pts = torch.tensor(pad_coordinates(problem, interval=(-1.0, 1.0)), dtype=F64)
         # the GP model: product of Matern-5/2 kernels (features x pads), BoTorch's default priors
         self.covar, self.likelihood = gp_modules(self.feats.shape[1], self.pts.shape[1] * self.n)
         self.hyp: Hyper | None = None

@@ -61,6 +61,7 @@ import numpy as np
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts
+from fixbench.solvers.descent import descend
 from fixbench.solvers.registry import register
 
 
@@ -124,33 +125,53 @@ class Greedy(Planner):
 
 def _descend(problem: Problem, evaluate, budget: float, rng: np.random.Generator, start: np.ndarray | None = None):
     """One restart from the best of ``start`` (else a random layout): (sweeps, converged, layouts
-    evaluated) within ``budget`` layouts."""
+    evaluated) within ``budget`` layouts. Best response on the oracle (:func:`fixbench.solvers.descent.descend`):
+    the agents in turn from a random one, each checking every other candidate of its set (:class:`_Check`)
+    and moving only to a strictly lower value, until every agent has been checked since the last move."""
     n = problem.n_agents
     starts = random_layouts(problem, rng, 1) if start is None else start
     values = evaluate(starts)
-    layout, value = starts[int(np.argmin(values))], float(np.min(values))
-    spent, checks, since = len(starts), 0, 0  # since: agents checked since the last move
+    check = _Check(problem, evaluate, budget, rng, starts[int(np.argmin(values))], float(np.min(values)), len(starts))
     a = int(rng.integers(n))  # the first agent to move: a small budget must not always favour agent 0
-    while since < n:
-        alts = problem.action_sets[a][problem.action_sets[a] != layout[a]]
-        fit = len(alts) if math.isinf(budget) else int(budget - spent)
-        partial = fit < len(alts)
-        if partial:
-            alts = rng.permutation(alts)[:fit]  # best effort: what the budget still allows
+    out = descend(check, check.positions[None], [(a + k) % n for k in range(n)], ties="stay", stop="others")
+    return int(out.sweeps[0]), bool(out.converged[0]) and not check.partial, check.spent
+
+
+class _Check:
+    """The score of greedy's descent: agent i's check evaluates every other candidate of its set with
+    the others fixed (one batched oracle call); the current layout scores its known value. When the
+    budget cannot pay for a whole check, the alternatives that still fit are evaluated (in random
+    order; the rest score inf), the check is ``partial`` and the last: the next turn stops the descent."""
+
+    def __init__(self, problem: Problem, evaluate, budget: float, rng: np.random.Generator, layout: np.ndarray,
+                 value: float, spent: int):
+        self.sets, self.evaluate, self.budget, self.rng = problem.action_sets, evaluate, budget, rng
+        self.layout, self.value, self.spent, self.partial = layout.copy(), value, spent, False
+        self.positions = np.array([int(np.flatnonzero(s == g)[0]) for s, g in zip(self.sets, layout)])
+        self.last: tuple[int, np.ndarray] | None = None  # the previous check: (agent, its scores)
+
+    def __call__(self, i: int, rows: np.ndarray, cur: np.ndarray) -> np.ndarray | None:
+        if self.partial:
+            return None
+        if self.last is not None:  # the previous agent stayed or moved: the current value is its score there
+            j, prev = self.last
+            self.value = prev[cur[0, j]]
+            self.layout[j] = self.sets[j][cur[0, j]]
+        s, here = self.sets[i], int(cur[0, i])
+        alts = np.delete(np.arange(len(s)), here)
+        fit = len(alts) if math.isinf(self.budget) else int(self.budget - self.spent)
+        if fit < len(alts):
+            self.partial = True
+            alts = self.rng.permutation(alts)[:fit]  # best effort: what the budget still allows
+        scores = np.full(len(s), np.inf)
+        scores[here] = self.value
         if len(alts):
-            trial = np.tile(layout, (len(alts), 1))
-            trial[:, a] = alts
-            values = evaluate(trial)
-            spent += len(alts)
-            i = int(np.argmin(values))
-            if values[i] < value:
-                layout, value, since = trial[i], values[i], 0
-        checks += 1
-        if partial:
-            break
-        since += 1
-        a = (a + 1) % n
-    return math.ceil(checks / n), since >= n, spent
+            trial = np.tile(self.layout, (len(alts), 1))
+            trial[:, i] = s[alts]
+            scores[alts] = self.evaluate(trial)
+            self.spent += len(alts)
+        self.last = (i, scores)
+        return scores[None]
 
 
 def _sample_moves(problem: Problem, evaluate, budget: int, rng: np.random.Generator,

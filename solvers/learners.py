@@ -14,10 +14,11 @@ learner does the same things, and they live here once:
 - the loop's parts: :func:`training_env`, :func:`explore` and the epsilon schedules
   (:func:`epsilon_by_step`, :func:`epsilon_by_run_fraction`), :func:`scaled_reward`, :class:`Replay`,
   :class:`StepRecord` (and :func:`per_episode`), :class:`Timings`;
-- the inputs: :func:`task_features`, :func:`action_positions`;
-- the result: :func:`policy_layouts` and :func:`learner_info` (the ``info`` keys every learner emits,
-  among them the curves Figure 4 draws: bench/reporting/figures.py ``FIGURE4_CURVES``).
+- the result: :func:`policy_layouts`, :func:`learner_info` (the ``info`` keys every learner emits) and
+  :func:`learner_training` (the curves every learner declares, among them those Figure 4 draws:
+  bench/reporting/figures.py ``FIGURE4_CURVES``).
 
+Their inputs (task features, pad coordinates and flags) are encoded in :mod:`fixbench.solvers.encoding`.
 docs/planners.md#write-a-learner says how a new learner uses them.
 """
 
@@ -34,7 +35,7 @@ import torch
 from fixbench.cases.env import FixtureEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
-from fixbench.solvers.base import PlannerConfig, PlannerError, TracedEvaluator, at_least, require
+from fixbench.solvers.base import PlannerConfig, PlannerError, TracedEvaluator, Training, at_least, require
 
 
 # ---------------------------------------------------------------------------------------------
@@ -237,25 +238,6 @@ class Timings:
 
 
 # ---------------------------------------------------------------------------------------------
-# inputs: tasks and actions as numbers
-# ---------------------------------------------------------------------------------------------
-def task_features(problem: Problem) -> np.ndarray:
-    """(T, F) task features min-max normalised over the problem's tasks (constant features -> 0.5)."""
-    f = problem.features.astype(np.float64)
-    lo, span = f.min(axis=0), np.ptp(f, axis=0)
-    return np.where(span > 0, (f - lo) / np.where(span > 0, span, 1), 0.5)
-
-
-def action_positions(problem: Problem) -> np.ndarray:
-    """(options, 2 m) every option's pads' (x, y) normalised to the candidates' bounding box (an axis
-    without extent: divided by 1)."""
-    c = problem.candidates
-    cmin, cspan = c.min(axis=0), np.where(np.ptp(c, axis=0) > 0, np.ptp(c, axis=0), 1)
-    reps = problem.points.shape[1] // 2
-    return (problem.points - np.tile(cmin, reps)) / np.tile(cspan, reps)
-
-
-# ---------------------------------------------------------------------------------------------
 # the result
 # ---------------------------------------------------------------------------------------------
 def policy_layouts(problem: Problem, actions: np.ndarray) -> np.ndarray:
@@ -263,26 +245,28 @@ def policy_layouts(problem: Problem, actions: np.ndarray) -> np.ndarray:
     return np.column_stack([problem.action_sets[i][actions[:, i]] for i in range(problem.n_agents)])
 
 
-def learner_info(name: str, cfg: LearnerConfig, problem: Problem, ids: np.ndarray, episodes: int,
-                 record: StepRecord, episode_return: list[float], own: dict[str, Any], times: Timings,
-                 t_start: float) -> dict:
-    """The ``info`` of a learner's run: the keys every learner emits, the learner's ``own`` keys among
-    them. Figure 4 draws ``step_reward``, ``step_max_u``, ``step_task`` and ``episode_return`` from these
-    (and ``episode_regret_ref`` / ``episode_regret_true`` where a learner adds them to ``own``); the
-    harness stores every numeric list as a curve (bench/running/cells.py). Call after :func:`torch_run` restored
-    the thread setting (``torch_threads`` reports the run's)."""
+def learner_training(record: StepRecord, episode_return: list[float]) -> Training:
+    """The curves every learner declares: ``step_reward``, ``step_max_u`` (m) and ``step_task``, one value
+    a training step, and ``episode_return``, one an episode (what Figure 4 draws, with
+    ``episode_regret_ref`` / ``episode_regret_true`` where a learner adds them: ``FIGURE4_CURVES`` in
+    bench/reporting/figures.py). A learner adds its own with :meth:`Training.add`."""
     rew, u, task = record.arrays()
+    return Training().add("step", step_reward=rew, step_max_u=u, step_task=task).add(
+        "episode", episode_return=episode_return)
+
+
+def learner_info(name: str, cfg: LearnerConfig, problem: Problem, ids: np.ndarray, episodes: int,
+                 record: StepRecord, own: dict[str, Any], times: Timings, t_start: float) -> dict:
+    """The ``info`` of a learner's run: the figures every learner emits (scalars and the task lists), the
+    learner's ``own`` among them; its curves go in its :class:`Training` (:func:`learner_training`).
+    Call after :func:`torch_run` restored the thread setting (``torch_threads`` reports the run's)."""
     return {
         "algorithm": name,
         "episodes_run": episodes,
         "budget_limited": episodes < cfg.episodes,
         "train_tasks": ids.tolist(),
         "held_out_tasks": np.setdiff1d(np.arange(problem.n_tasks), ids).tolist(),
-        "steps": len(rew),
-        "step_reward": rew.tolist(),
-        "step_max_u": u.tolist(),
-        "step_task": task.tolist(),
-        "episode_return": episode_return,
+        "steps": len(record.reward),
         **own,
         "time_setup_s": times.setup,  # oracle set-up before training (in no other timer)
         "time_select_s": times.select,

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.learners import action_positions, task_features
+from fixbench.solvers.encoding import pad_coordinates, robot_centres, task_features
 
 
 # ---------------------------------------------------------------------------------------------
@@ -275,6 +275,10 @@ def _best_response(ws, cols, n_opts, s, pos, centre, others, fixed, fixed_action
     so when the state at the end of a sweep (actions, agents needing a turn) repeats an earlier one the
     rest is a cycle, and the actions after ``max_sweeps`` sweeps are read off it. Returns
     (actions (B, N), sweeps computed, converged).
+
+    The descent is :func:`fixbench.solvers.descent.descend` (``ties="first"``, ``stop="others"``,
+    ``cycles=True``), compiled: ``tests/test_descent.py`` checks this kernel against it to the bit (per
+    state; in a batch the agents needing a turn are pooled over the states: the same actions).
     """
     nb, n = fixed.shape
     d = pos.shape[2]
@@ -366,16 +370,17 @@ class Learner:
         cols_pad = np.zeros((n, opt_max, m), dtype=np.int64)
         for i, c in enumerate(cols):
             cols_pad[i, :len(c)] = c + width * np.arange(m)  # head k's columns start at k * width
-        feats = task_features(problem)  # state features, min-max normalised over the problem's tasks
+        feats = task_features(problem, "min-max")  # state features, [0, 1] over the problem's tasks
         self.feats = torch.tensor(feats, dtype=torch.float32, device=device)  # (T, F)
-        # action positions (its pads' (x, y)) normalised to the candidates' bounding box, padded per agent
-        options_pos = action_positions(problem)
+        # action positions (its pads' (x, y)) in [0, 1] of the candidates' bounding box, padded per agent;
+        # no "placed" flags: the others' positions are the only action inputs (the module docstring of
+        # fixbench.solvers.encoding says why)
+        options_pos = pad_coordinates(problem, interval=(0.0, 1.0))
         d = options_pos.shape[1]
         pos = np.full((n, opt_max, d), 0.5)
-        centre = np.zeros((n, d))
         for i, s in enumerate(problem.action_sets):
             pos[i, :len(s)] = options_pos[s]
-            centre[i] = pos[i, :len(s)].mean(axis=0)
+        centre = robot_centres(problem, options_pos)  # where a robot not chosen yet sits
         self.pos = torch.tensor(pos, dtype=torch.float32, device=device)  # (N, A, D)
         self.others = torch.tensor([[j for j in range(n) if j != i] for i in range(n)],
                                    dtype=torch.long, device=device).reshape(n, max(n - 1, 0))

@@ -42,8 +42,9 @@ if not even one episode fits, :class:`PlannerError`. The returned layouts are th
 planner is (:mod:`fixbench.solvers.base`): by the best layout evaluated on each training task, the
 policy as the second figure ``policy``; on held-out tasks (no samples) by the policy.
 
-Regret (``info``): ``episode_regret_ref`` is the reference's N T r* - N sum(step rewards), with r* its
-stand-in for the optimal step reward, :data:`fixbench.cases.rewards.REFERENCE_OPTIMAL_REWARD` (0.7854);
+Regret (curves of the run's ``training``): ``episode_regret_ref`` is the reference's N T r* - N sum(step
+rewards), with r* its stand-in for the optimal step reward,
+:data:`fixbench.cases.rewards.REFERENCE_OPTIMAL_REWARD` (0.7854);
 ``episode_regret_true`` is sum over the episode's steps of (max_u - u*) in metres, with u* the
 task's optimum from ``Config.optima`` when given, else the best max_u the run itself saw on the
 task; ``episode_regret_reward`` is sum of (r* - r) with r* the best reward seen on the task.
@@ -70,6 +71,7 @@ from fixbench.solvers.learners import (
     epsilon_by_step,
     explore,
     learner_info,
+    learner_training,
     per_episode,
     policy_layouts,
     scaled_reward,
@@ -187,24 +189,26 @@ class _QPlanner(Planner):
         np.maximum.at(best_r, task_arr, rew_arr)
         u_star = np.asarray(cfg.optima, dtype=float) if cfg.optima else best_u
         own = {
-            "episode_regret_ref": [n * n_train * REFERENCE_OPTIMAL_REWARD - n * r for r in run["episode_return"]],
-            "episode_regret_true": per_episode(u_arr - u_star[task_arr], episodes),
-            "episode_regret_reward": per_episode(best_r[task_arr] - rew_arr, episodes),
             "regret_reference": "optima" if cfg.optima else "best seen in run",
             "best_seen_max_u": [float(x) if np.isfinite(x) else None for x in best_u],
-            "td_loss": [[ep[i] for ep in ep_loss] for i in range(n)],  # per agent, mean per episode
             "br_sweeps_mean": sweeps_sum / br_calls if br_calls else 0.0,
             "br_converged_frac": conv_sum / br_calls if br_calls else 1.0,
             "greedy_sweeps": g_sweeps,
             "greedy_converged": bool(g_conv),
-            # cumulative seconds at the end of each episode (where a run slows down, and why)
-            "time_oracle_cum_s": [t[0] for t in run["episode_times"]],
-            "time_select_cum_s": [t[1] for t in run["episode_times"]],
-            "time_update_cum_s": [t[2] for t in run["episode_times"]],
         }
-        info = learner_info(self.name, cfg, problem, ids, episodes, record, run["episode_return"], own,
-                            run["times"], t_start)
-        return run["layouts"], info
+        info = learner_info(self.name, cfg, problem, ids, episodes, record, own, run["times"], t_start)
+        training = learner_training(record, run["episode_return"]).add(
+            "episode",
+            episode_regret_ref=[n * n_train * REFERENCE_OPTIMAL_REWARD - n * r for r in run["episode_return"]],
+            episode_regret_true=per_episode(u_arr - u_star[task_arr], episodes),
+            episode_regret_reward=per_episode(best_r[task_arr] - rew_arr, episodes),
+            # cumulative seconds at the end of each episode (where a run slows down, and why)
+            time_oracle_cum_s=[t[0] for t in run["episode_times"]],
+            time_select_cum_s=[t[1] for t in run["episode_times"]],
+            time_update_cum_s=[t[2] for t in run["episode_times"]],
+            # each agent's TD loss, mean per episode
+            **{f"td_loss/agent{i}": [ep[i] for ep in ep_loss] for i in range(n)})
+        return run["layouts"], info, training
 
     def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
                episodes: int, device: torch.device, gen: torch.Generator) -> dict:

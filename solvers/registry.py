@@ -31,6 +31,7 @@ BUILTIN = {"random": "fixbench.solvers.random_search", "exact": "fixbench.solver
            "surrogate-ts": "fixbench.solvers.surrogate",
            "vdn": "fixbench.solvers.vdn",
            "mappo": "fixbench.solvers.library_learners", "ippo": "fixbench.solvers.library_learners",
+           "qmix": "fixbench.solvers.library_learners",
            "gp-ucb": "fixbench.solvers.gp_bandit"}
 _REGISTRY: dict[str, type[Planner]] = {}
 

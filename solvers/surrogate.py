@@ -5,7 +5,7 @@ propose, act on held-out tasks). The rounds loop itself (data, round 0, batch si
 repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandit`'s, shared with ``gp-ucb``.
 
 The model. One regression, shared by every task, of y = log(max |u|) on x = [the task's features
-(:func:`fixbench.solvers.transfer.scaled_features`, centred), the layout's pad coordinates
+(:func:`fixbench.solvers.encoding.task_features`, scaled by their spread, centred), the layout's pad coordinates
 (``Problem.points`` of each agent's action, in agent order, scaled to [-1, 1] in the candidates'
 bounding box)]. Deformation varies over orders of magnitude between a good and a bad layout, hence
 the log; the target is standardised by the mean and standard deviation of all data seen so far. The
@@ -64,8 +64,10 @@ import numpy as np
 import torch
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit, gauss_seidel, pad_coordinates
-from fixbench.solvers.base import TracedEvaluator, at_least, require
+from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit
+from fixbench.solvers.base import TracedEvaluator, Training, at_least, require
+from fixbench.solvers.descent import descend
+from fixbench.solvers.encoding import pad_coordinates
 from fixbench.solvers.registry import register
 
 
@@ -178,14 +180,18 @@ class Responder:
 
     def respond(self, member: int | None, tasks: np.ndarray, local: np.ndarray,
                 max_sweeps: int) -> tuple[np.ndarray, int]:
-        """Gauss-Seidel best response of every query from ``local`` (Q, n_agents) positions, on member
-        ``member`` (None: the ensemble mean). Returns (positions, sweeps summed over the queries)."""
-        local = torch.from_numpy(local.copy())
+        """Best response of every query from ``local`` (Q, n_agents) positions, on member ``member`` (None:
+        the ensemble mean): :func:`~fixbench.solvers.descent.descend`, agents in order, each to its lowest
+        prediction (the first of equal ones), a query stopping after a sweep that moved none. Returns
+        (positions, sweeps summed over the queries)."""
         tasks_t = torch.from_numpy(np.asarray(tasks, dtype=np.int64))
         members = range(self.k) if member is None else [member]
-        total = gauss_seidel(local, len(self.slot), max_sweeps, lambda i, active, cur: torch.argmin(
-            sum(self.scores(k, tasks_t[active], cur, i) for k in members), dim=1))
-        return local.numpy(), total
+
+        def score(i: int, rows: np.ndarray, cur: np.ndarray) -> torch.Tensor:
+            return sum(self.scores(k, tasks_t[torch.from_numpy(rows)], torch.from_numpy(cur), i) for k in members)
+
+        out = descend(score, local, range(len(self.slot)), max_sweeps=max_sweeps, ties="first", stop="sweep")
+        return out.layout, int(out.sweeps.sum())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -199,7 +205,7 @@ class ThompsonRun(BanditRun):
         self.gen = torch.Generator().manual_seed(int(rng.integers(2**31 - 1)))
         # inputs: centred scaled features; pad coordinates in [-1, 1] of the candidates' bounding box
         self.feats = torch.tensor(self.features - self.features.mean(axis=0), dtype=torch.float32)
-        self.pts = torch.tensor(pad_coordinates(problem), dtype=torch.float32)
+        self.pts = torch.tensor(pad_coordinates(problem, interval=(-1.0, 1.0)), dtype=torch.float32)
         self.W = torch.zeros(cfg.ensemble, len(self.y))  # Poisson(1) bootstrap weight of every sample per member
         self.model = Ensemble(cfg.ensemble, self.feats.shape[1] + self.n * self.pts.shape[1], cfg.hidden, self.gen)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -267,6 +273,9 @@ class ThompsonRun(BanditRun):
     def model_info(self) -> dict:
         return {"train_steps": self.steps, "final_loss": self.losses[-1] if self.losses else None,
                 "br_sweeps_mean": self.sweeps / self.queries if self.queries else 0.0}
+
+    def model_curves(self, training: Training) -> Training:
+        return training.add("fit", fit_loss=self.losses)  # a member's loss at the last step of each fit
 
 
 # ---------------------------------------------------------------------------------------------

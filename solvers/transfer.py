@@ -7,7 +7,8 @@ evaluated.
 
 Tasks are near when their *features* are near (``Problem.features``: for a drilling job, the
 drilling position). Each feature column is divided by its spread over the case's tasks, so that
-columns in different units weigh alike; a column that never changes is ignored.
+columns in different units weigh alike; a column that never changes is ignored
+(:func:`fixbench.solvers.encoding.task_features`, ``scale="spread"``).
 
 - :func:`nearest_tasks`: the solved tasks nearest to a task, nearest first;
 - :func:`warm_layouts`: the best layouts of those tasks (what a warm-started search starts from);
@@ -20,24 +21,17 @@ from __future__ import annotations
 import numpy as np
 
 from fixbench.cases.problem import Problem
-
-
-def scaled_features(problem: Problem) -> np.ndarray:
-    """Task features divided by each column's spread over the tasks (constant columns dropped)."""
-    f = np.asarray(problem.features, dtype=float).reshape(problem.n_tasks, -1)
-    spread = f.max(axis=0) - f.min(axis=0)
-    keep = spread > 0
-    return f[:, keep] / spread[keep] if keep.any() else np.zeros((problem.n_tasks, 1))
+from fixbench.solvers.encoding import task_features
 
 
 def nearest_tasks(problem: Problem, solved, task: int, k: int, features: np.ndarray | None = None) -> np.ndarray:
     """Up to ``k`` of the ``solved`` task indices nearest to ``task`` by features (nearest first;
-    ties by index, so the order is deterministic). ``features``: :func:`scaled_features` of the
-    problem, when a caller asks for many tasks (computed here otherwise)."""
+    ties by index, so the order is deterministic). ``features``: the problem's
+    ``task_features(problem, "spread")``, when a caller asks for many tasks (computed here otherwise)."""
     solved = np.asarray(solved, dtype=np.int64)
     if k <= 0 or len(solved) == 0:
         return np.empty(0, dtype=np.int64)
-    f = scaled_features(problem) if features is None else features
+    f = task_features(problem, "spread") if features is None else features
     d = np.linalg.norm(f[solved] - f[task], axis=1)
     order = np.lexsort((solved, d))
     return solved[order[:k]]
@@ -64,7 +58,7 @@ def fill_held_out(problem: Problem, layouts: np.ndarray, solved) -> tuple[np.nda
     nearest solved task; returns (layouts, {task: source task}) for the rows filled."""
     out = np.array(layouts, dtype=np.int64, copy=True)
     solved = np.asarray(solved, dtype=np.int64)
-    filled, f = {}, scaled_features(problem)
+    filled, f = {}, task_features(problem, "spread")
     for t in np.setdiff1d(np.arange(problem.n_tasks), solved):
         if (out[t] < 0).any():
             src = int(nearest_tasks(problem, solved, int(t), 1, f)[0])

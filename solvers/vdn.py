@@ -22,8 +22,9 @@ Design:
 - one network for every action of every agent (parameter sharing over pad coordinates):
   Q_i(s, a) = MLP(task features of s, pad coordinates of action a, one-hot of agent i) -> a scalar.
   Task features are min-max normalised over the problem's tasks; an action's pads' (x, y) are
-  normalised to the candidates' bounding box (a robot that places m pads: 2 m numbers, and m flags
-  "this pad is placed", a "no pad" sitting at its robot's candidates' centroid). Actions near each
+  normalised to [0, 1] of the candidates' bounding box (a robot that places m pads: 2 m numbers, and m flags
+  "this pad is placed", a "no pad" sitting at its robot's candidates' centroid), both from
+  :mod:`fixbench.solvers.encoding` (``task_features(..., "min-max")``, ``action_inputs``). Actions near each
   other get near values before either was tried: what is learned on one candidate carries to its
   neighbours, and from one agent to the others through the shared weights.
 - VDN: Q_tot(s, a) = sum_i Q_i(s, a_i), regressed (mean squared error) on the shared reward of the
@@ -58,20 +59,20 @@ from torch import nn
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
 from fixbench.solvers.base import Planner, TracedEvaluator, at_least, require
+from fixbench.solvers.encoding import action_inputs, task_features
 from fixbench.solvers.learners import (
     QLearnerConfig,
     Replay,
     StepRecord,
     Timings,
-    action_positions,
     episodes_that_fit,
     epsilon_by_run_fraction,
     explore,
     learner_info,
+    learner_training,
     per_episode,
     policy_layouts,
     scaled_reward,
-    task_features,
     torch_generator,
     train_split,
     training_env,
@@ -163,9 +164,7 @@ class Actions:
 
     def __init__(self, problem: Problem):
         n, sizes = problem.n_agents, [len(s) for s in problem.action_sets]
-        pos = action_positions(problem)  # (options, 2 m)
-        if not problem.spec.effector.simple:  # an idle pad's "no pad" sits at the centroid: say so
-            pos = np.concatenate([pos, (problem.options >= 0).astype(float)], axis=1)
+        pos = action_inputs(problem, interval=(0.0, 1.0))  # (options, 2 m [+ m pad flags])
         parts = [np.concatenate([pos[s], np.tile(np.eye(n)[i], (len(s), 1))], axis=1)
                  for i, s in enumerate(problem.action_sets)]
         self.rows = torch.tensor(np.concatenate(parts), dtype=torch.float32)
@@ -219,11 +218,11 @@ class VDN(Planner):
         with torch_run(cfg.threads):
             run = self._train(problem, ev, rng, ids, episodes, gen)
         record = run["record"]
-        own = {"updates": run["updates"],
-               "episode_loss": run["episode_loss"]}  # mean squared error of Q_tot per update, mean per episode
-        info = learner_info(self.name, cfg, problem, ids, episodes, record,
-                            per_episode(record.arrays()[0], episodes), own, run["times"], t_start)
-        return run["layouts"], info
+        info = learner_info(self.name, cfg, problem, ids, episodes, record, {"updates": run["updates"]},
+                            run["times"], t_start)
+        training = learner_training(record, per_episode(record.arrays()[0], episodes)).add(
+            "episode", episode_loss=run["episode_loss"])  # MSE of Q_tot, mean per episode (NaN: no update)
+        return run["layouts"], info, training
 
     def _train(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, ids: np.ndarray,
                episodes: int, gen: torch.Generator) -> dict:
@@ -233,7 +232,7 @@ class VDN(Planner):
         # the env pays the seed's Gaussian reward; the learner's reward is its own transform of max_u
         env, setup_s = training_env(problem, ev, ids, cfg.shuffle)
         tm = Timings(setup=setup_s)
-        acts, feats = Actions(problem), torch.tensor(task_features(problem), dtype=torch.float32)
+        acts, feats = Actions(problem), torch.tensor(task_features(problem, "min-max"), dtype=torch.float32)
         q = SharedQ(feats.shape[1] + acts.rows.shape[1], cfg.hidden, cfg.layers, gen)
         opt = torch.optim.AdamW(q.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         scale = LogScale(cfg.scale_samples)

@@ -44,10 +44,11 @@ import click
 import numpy as np
 
 from fixbench.bench.cli_common import run_command
-from fixbench.bench.reporting.figures import FIGURE4_CURVES, figure4_panels, palette
+from fixbench.bench.reporting.figures import figure4_panels, palette, training_run
 from fixbench.bench.reporting.plots import save_png
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import case_names
+from fixbench.solvers.base import PlanResult, Training
 
 #: the seed's protocol: its Gaussian reward with the case's widths (the learners' default is 'scaled')
 SEED_REWARD = "gaussian"
@@ -55,18 +56,16 @@ SEED_REWARD = "gaussian"
 SEED_LEARNERS = ("nashq", "iql")
 
 
-def _learner_runs(info_or_results) -> dict[str, list[dict]]:
+def _learner_runs(results) -> dict[str, list[dict]]:
     """Figure 4's input (:func:`fixbench.bench.reporting.figures.learner_runs`) from one run or a dict {label: run},
-    a run being a planner's info dict or PlanResult; the true regret and the violin are against the best
+    a run being a learner's PlanResult or its Training; the true regret and the violin are against the best
     layout each run saw on a task (a run keeps no optima)."""
     def one(x) -> dict:
-        info = x.info if hasattr(x, "info") else x
-        return {**{k: np.asarray(info[k], dtype=float) for k in FIGURE4_CURVES}, "optimum": None}
+        return training_run(getattr(x, "training", x))
 
-    if hasattr(info_or_results, "info") or (isinstance(info_or_results, dict) and "step_reward" in info_or_results):
-        info = getattr(info_or_results, "info", info_or_results)
-        return {f"{info.get('algorithm', 'run')}": [one(info_or_results)]}
-    return {str(k): [one(v)] for k, v in dict(info_or_results).items()}
+    if isinstance(results, (PlanResult, Training)):
+        return {getattr(results, "planner", "run"): [one(results)]}
+    return {str(k): [one(v)] for k, v in dict(results).items()}
 
 
 #: Figure 4's files, one a panel (README shows them)
@@ -74,14 +73,14 @@ FIGURE4_FILES = ("fig4a_step_reward.png", "fig4b_episodic_return.png", "fig4c_ep
                  "fig4d_violin.png")
 
 
-def figure4(info_or_results, out_dir: str | Path) -> list[Path]:
+def figure4(results, out_dir: str | Path) -> list[Path]:
     """Write the four panels of the seed's Figure 4 (:func:`fixbench.bench.reporting.figures.figure4_panels`, the
     report's Figure 4 one panel a file) as PNGs into ``out_dir``; returns the paths.
 
-    ``info_or_results``: a planner's info dict or PlanResult, or a dict {label: info or PlanResult}
+    ``results``: a learner's PlanResult or Training, or a dict {label: PlanResult or Training}
     (one line and one violin per label).
     """
-    runs = _learner_runs(info_or_results)
+    runs = _learner_runs(results)
     figs = figure4_panels(runs, palette(list(runs)))
     return [save_png(fig, Path(out_dir) / name) for fig, name in zip(figs, FIGURE4_FILES)]
 
@@ -113,7 +112,8 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
     i = res.info
     if figures:
         figure4({f"{planner} N={problem.n_agents}": res}, figures)
-        (Path(figures) / "training.json").write_text(json.dumps(i))
+        curves = {name: c.values.tolist() for name, c in res.training.curves.items()}
+        (Path(figures) / "training.json").write_text(json.dumps({**i, **curves}))
     return {"case": case, "planner": planner, "agents": problem.n_agents, "tasks": problem.n_tasks,
             "episodes": i["episodes_run"], "samples": res.samples, "oracle_setup_s": setup,
             "wall_s": wall, "plan_s": i["time_total_s"], "oracle_s": i["time_oracle_s"],
@@ -121,7 +121,8 @@ def speed(case: str = "wing_panel", planner: str = "nashq", agents: int | None =
             "greedy_s": i["time_greedy_s"], "device": device, "br_sweeps_mean": i["br_sweeps_mean"],
             "br_converged_frac": i["br_converged_frac"], "torch_threads": i["torch_threads"],
             "mean_max_deformation_m": float(res.max_deformation.mean()),
-            "per_task_m": res.max_deformation.tolist(), "episode_return": i["episode_return"],
+            "per_task_m": res.max_deformation.tolist(),
+            "episode_return": res.training.values("episode_return").tolist(),
             "loadavg": os.getloadavg(), "cpus": os.cpu_count()}
 
 
@@ -258,7 +259,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     """A learner trained on some tasks, acting on the others with no samples, beside planners that spend
     ``per_task`` samples on every held-out task.
 
-    The split is the harness's held-out track (:func:`fixbench.bench.reporting.comparison.heldout_tasks`): the
+    The split is the harness's held-out track (:func:`fixbench.bench.running.keys.split`): the
     learner trains on tasks 0, ``every``, 2 ``every``, ... for ``episodes`` episodes, through
     ``Planner.solve(train_tasks=...)`` as a held-out cell does; its greedy policy's layouts on the other
     tasks cost nothing (``train_policy_um``: the same policy on its training tasks, ``train_best_seen_um``:
@@ -266,14 +267,13 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     Gap: mean max deformation over the held-out tasks against the best layout any of these runs found on
     each task (no proven optimum at this size).
     """
-    from fixbench.bench.reporting.comparison import heldout_tasks
+    from fixbench.bench.running.keys import split
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 
     problem = load_problem(case)
     prepare(problem)
-    held = np.asarray(heldout_tasks(problem.n_tasks, every), dtype=int)
-    train = np.setdiff1d(np.arange(problem.n_tasks), held)
+    train, held = (np.asarray(x, dtype=int) for x in split(problem.n_tasks, every))
     t = time.perf_counter()
     res = get(planner)(episodes=episodes, **{"reward": SEED_REWARD, **planner_config}).solve(
         problem, None, seed=seed, train_tasks=train.tolist())

@@ -64,10 +64,10 @@ def problem():
 
 
 def run(problem, budget, seed, tasks=None, **cfg):
-    """The run object itself (its data and records), and what it returned."""
+    """The run object itself (its data and records), and what it returned (its training curves apart)."""
     ev = TracedEvaluator(problem, budget, tasks)
     r = ToyRun(ToyConfig(initial_random=3, **cfg), problem, ev, np.random.default_rng(seed))
-    layouts, info = r.run()
+    layouts, info, r.training_record = r.run()
     return r, ev, layouts, info
 
 
@@ -81,6 +81,10 @@ def test_rounds_spend_the_budget_exactly_in_at_most_max_rounds(problem):
     # task after task: each task is asked once the tasks before it in the round are evaluated
     assert [size for _, _, size in r.asked] == [6, 10, 14, 18, 22, 25]
     assert r.size == 27
+    curves = r.training_record.curves  # a value a round, round 0 first
+    assert {c.unit for c in curves.values()} == {"round"} and curves["round_samples"].values.tolist() == [6, 14, 22, 27]
+    assert curves["round_best_mean_u"].values[-1] == pytest.approx(ev.best[[0, 2]].mean())
+    assert (np.diff(curves["round_best_mean_u"].values) <= 0).all()  # the best so far only improves
     for t in (0, 2):  # the data holds log max |u| of what the evaluator saw; no layout twice on a task
         rows = r.task[:27] == t
         assert r.y[rows].min() == np.log(ev.best[t])

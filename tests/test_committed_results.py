@@ -8,7 +8,6 @@ reference.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,7 @@ def test_no_committed_layout_beats_its_reference(run):
     assert len(rows), f"results/{run} has no successful row with per-task deformations"
     refs = load_references(root)
     for _, row in rows.iterrows():
-        u = np.asarray(json.loads(row["per_task_m"]))
+        u = np.asarray(row["per_task_m"])
         ref = refs[(row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))]
         bound = np.asarray(ref["per_task"]) * (1 - 1e-9)
         assert (u >= bound).all(), (run, row["cell"], row["planner"], np.flatnonzero(u < bound))

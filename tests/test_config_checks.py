@@ -26,6 +26,7 @@ BAD = [
     ("iql", "reward", "fancy"), ("iql", "train_fraction", 0.0),
     ("local", "start_share", 2.0), ("local", "neighbours", 0),
     ("mappo", "clip_epsilon", 1.0), ("ippo", "batch_episodes", 0),
+    ("qmix", "eps_end", 0.95), ("qmix", "eps_decay", 0.0),
     ("nashq", "scale_samples", 1), ("nashq", "device", "tpu"), ("nashq", "train_tasks", (0, -1)),
     ("optuna", "stall_asks", 0),
     ("pso", "max_velocity_rate", 0.0), ("pso", "pop_size", 1),

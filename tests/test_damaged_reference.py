@@ -57,7 +57,7 @@ def test_a_damaged_reference_stops_the_run_before_any_cell(catalog, tmp_path, ca
 def _scored_run(root, source: str):
     """A run directory of one fake row scored against ``source``."""
     row = {k: math.nan for k in ROW_SCHEMA}
-    row.update(schema=1, cell="c0", planner="random", config="{}", case="wing_panel", material="aluminium",
+    row.update(cell="c0", planner="random", config={}, case="wing_panel", material="aluminium",
                agents=5, mode="per-task", seed=0, n_tasks=2, error="", objective_m=2e-5, relative_regret=0.5,
                reference_objective_m=1.33e-5, reference_source=source)
     Store(root).write(row, None, None)

@@ -202,6 +202,9 @@ def test_csv(run, tmp_path):
     assert np.allclose(merged["objective_m"].to_numpy(dtype=float), rows["objective_m"].to_numpy(dtype=float),
                        rtol=1e-15, equal_nan=True)
     assert (merged["samples"].fillna(-1).to_numpy() == rows["samples"].fillna(-1).to_numpy()).all()
+    for col in ("config", "per_task_m", "layouts", "provenance"):  # JSON values as their JSON text
+        values = [v for v in rows[col] if isinstance(v, (list, dict))]
+        assert values and [json.loads(v) for v in merged[col] if isinstance(v, str)] == values, col
     tr = pd.read_csv(out / "traces.csv")
     assert list(tr.columns) == ["cell", "task", "task_samples", "samples", "best"] and len(tr) == len(traces)
     assert tr["samples"].dtype.kind == "i"

@@ -34,6 +34,8 @@ def test_spends_exactly_its_budget_and_repeats_bit_for_bit(problem):
     np.testing.assert_array_equal(first.trace, again.trace)  # every sample's best, in order
     np.testing.assert_array_equal(first.max_deformation, again.max_deformation)
     assert first.info["lengthscales_pads"] == again.info["lengthscales_pads"]
+    assert first.training.values("round_samples")[-1] == budget  # round 0 and the rounds, the last spends it all
+    assert len(first.training.values("round_best_mean_u")) == first.info["rounds"] + 1
     other = GPUCB(fit_iters=10).solve(small, budget, seed=6)
     assert not np.array_equal(first.trace, other.trace)
 

@@ -98,10 +98,7 @@ def test_run_resume_and_schema(tmp_path):
     assert df["reference_proven"].all() and (df["relative_regret"] >= -1e-12).all()
     again = run_matrix(path, out, workers=1, progress=False)
     assert again["run"] == 0 and again["skipped"] == 8
-    import json
-
-    for text in df["provenance"]:  # where and with what each row was made
-        p = json.loads(text)
+    for p in df["provenance"]:  # where and with what each row was made
         assert p["fixbench"] and p["python"] and p["libraries"]["numpy"] and p["cpu"] and p["cores"] >= 1
         assert isinstance(p["env"], dict) and "numpy_blas" in p
 

@@ -31,7 +31,7 @@ def page(tmp_path_factory) -> Path:
     store = Store(run)
     for i, row in enumerate(sorted(store.finished().values(), key=lambda r: r["cell"])):
         if i % 2:  # half the rows with a provenance (the others as rows made before it was recorded)
-            store.rewrite(dict(row, provenance=json.dumps(dict(provenance(), cpu="Test CPU <x>"))))
+            store.rewrite(dict(row, provenance=dict(provenance(), cpu="Test CPU <x>")))
     (run / "matrix.toml").write_text('name = "fake"\n# a <comment> & more\n')
     res = make_report(run, fields=False)
     assert res["html"] == run / "report" / "index.html"

@@ -139,7 +139,7 @@ def test_runs_that_are_not_comparable_are_refused(tmp_path, capsys):
     assert "cells at seed 7" in err and "has seed 0, 1" in err
     # a label naming another config
     label = copy_run(TINY, tmp_path / "label")
-    _rewrite(label, lambda r: r.update(config=json.dumps({"batch": 5})) if r["planner"] == "random" else None)
+    _rewrite(label, lambda r: r.update(config={"batch": 5}) if r["planner"] == "random" else None)
     err = _refused(capsys, base, label)
     assert "label 'random' is random (batch=5) here and random (default)" in err and "collide" in err
     # the same cell with another result

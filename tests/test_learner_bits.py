@@ -1,8 +1,8 @@
 """The Q-learners' shared pieces (solvers/learners.py) keep their contracts: the config fields and
 defaults committed runs hash, the budget as whole episodes, the two epsilon schedules in their units,
-the training split, the replay ring, one task-feature normalisation for vdn and the nashq engine,
+the training split, the replay ring, the nashq engine's inputs from solvers/encoding.py,
 and on every run: the same seed gives the same bits, the budget is spent exactly, held-out tasks get
-no sample, and the info keys every learner emits (Figure 4's curves among them) are there."""
+no sample, the info keys every learner emits and the curves it declares (Figure 4's among them) are there."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from fixbench.bench.reporting.figures import FIGURE4_CURVES
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError, TracedEvaluator
+from fixbench.solvers.encoding import pad_coordinates, task_features
 from fixbench.solvers.learners import (
     LearnerConfig,
     QLearnerConfig,
@@ -24,7 +25,6 @@ from fixbench.solvers.learners import (
     episodes_that_fit,
     epsilon_by_run_fraction,
     epsilon_by_step,
-    task_features,
     train_ids,
     train_split,
 )
@@ -37,8 +37,10 @@ from fixbench.solvers.vdn import VDNConfig
 LEARNERS = ("nashq", "iql", "vdn")
 #: every key of learners.learner_info, in every learner's info
 COMMON_KEYS = {"algorithm", "episodes_run", "budget_limited", "train_tasks", "held_out_tasks", "steps",
-               "step_reward", "step_max_u", "step_task", "episode_return", "time_setup_s", "time_select_s",
-               "time_oracle_s", "time_update_s", "time_greedy_s", "time_total_s", "torch_threads"}
+               "time_setup_s", "time_select_s", "time_oracle_s", "time_update_s", "time_greedy_s", "time_total_s",
+               "torch_threads"}
+#: every curve of learners.learner_training, with its unit, in every learner's training record
+COMMON_CURVES = {"step_reward": "step", "step_max_u": "step", "step_task": "step", "episode_return": "episode"}
 #: the defaults committed runs hash (results/paper/matrix.toml, results/tune/*.toml name these fields)
 NASHQ_DEFAULTS = {"episodes": 100, "eps_start": 0.9, "eps_end": 0.05, "eps_decay": 3500.0, "alpha": 0.8,
                   "lr": 1e-4, "batch": 32, "capacity": 1_000_000, "hidden": 256, "grad_clip": 100.0, "tau": 0.005,
@@ -126,16 +128,15 @@ def test_replay_is_a_ring_of_its_capacity():
     assert Replay(capacity=100, steps=4, n_agents=1).cap == 4  # never more than the run's steps
 
 
-def test_one_task_feature_normalisation_for_every_learner():
+def test_the_nashq_engine_takes_its_inputs_from_the_encoding_module():
+    """The engine's state is the min-max task features and its action inputs the [0, 1] pad coordinates
+    (their ranges: tests/test_encoding.py)."""
     p = Problem(load_case_spec("fan_small", n_agents=2))
-    f = task_features(p)
-    assert f.shape == (p.n_tasks, p.features.shape[1]) and f.min() >= 0 and f.max() <= 1
-    span = np.ptp(p.features, axis=0)
-    assert np.all(f[:, span > 0].min(axis=0) == 0) and np.all(f[:, span > 0].max(axis=0) == 1)
-    one_task = Problem(load_case_spec("fan_small", n_agents=2).with_tasks([3]))
-    assert np.all(task_features(one_task) == 0.5)  # a feature constant over the tasks sits in the middle
     engine = Learner(p, 8, 2, True, torch.device("cpu"), torch.Generator().manual_seed(0))
-    assert torch.equal(engine.feats, torch.tensor(f, dtype=torch.float32))
+    assert torch.equal(engine.feats, torch.tensor(task_features(p, "min-max"), dtype=torch.float32))
+    pos = pad_coordinates(p, interval=(0.0, 1.0))
+    for i, s in enumerate(p.action_sets):
+        assert torch.equal(engine.pos[i, :len(s)], torch.tensor(pos[s], dtype=torch.float32))
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -151,8 +152,13 @@ def test_same_seed_same_bits_and_exact_budget(small, name):
     assert a.trace.tobytes() == b.trace.tobytes()
     untimed = [{k: v for k, v in r.info.items() if not k.startswith("time_")} for r in runs]
     assert untimed[0] == untimed[1]
+    assert a.training.curves.keys() == b.training.curves.keys()
+    for key, curve in a.training.curves.items():
+        if not key.startswith("time_"):
+            assert curve.unit == b.training.curves[key].unit
+            assert curve.values.tobytes() == b.training.values(key).tobytes(), key
     other = get(name)(**QUICK).solve(small, budget, seed=3)
-    assert other.info["step_max_u"] != a.info["step_max_u"]  # the seed matters
+    assert other.training.values("step_max_u").tobytes() != a.training.values("step_max_u").tobytes()  # the seed
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -162,11 +168,16 @@ def test_held_out_tasks_get_no_sample_and_the_info_every_learner_emits(small, na
     info = result.info
     assert result.samples == 3 * len(train) and set(result.trace[:, 0].astype(int)) == set(train)
     assert info["train_tasks"] == train and info["held_out_tasks"] == [1, 3]
-    assert set(info["step_task"]) == set(train)
+    curves = result.training.curves
+    assert set(curves["step_task"].values) == set(train)
     np.testing.assert_array_equal(result.layouts[[1, 3]], result.policy_layouts[[1, 3]])
     assert COMMON_KEYS <= set(info) and info["algorithm"] == name
-    assert len(info["step_reward"]) == len(info["step_max_u"]) == info["steps"] == result.samples
-    assert len(info["episode_return"]) == info["episodes_run"] == 3
-    assert np.allclose(info["episode_return"], np.reshape(info["step_reward"], (3, -1)).sum(axis=1))
+    assert {k: curves[k].unit for k in COMMON_CURVES} == COMMON_CURVES
+    assert not {k for k, v in info.items() if isinstance(v, list) and len(v) == result.samples}  # no curve in info
+    assert len(curves["step_reward"].values) == len(curves["step_max_u"].values) == info["steps"] == result.samples
+    assert len(curves["episode_return"].values) == info["episodes_run"] == 3
+    assert np.allclose(curves["episode_return"].values, np.reshape(curves["step_reward"].values, (3, -1)).sum(axis=1))
     if name != "vdn":  # the regret curves of Figure 4 (vdn has no regret reference of its own)
-        assert set(FIGURE4_CURVES) <= set(info)
+        assert set(FIGURE4_CURVES) <= set(curves)
+    else:  # its loss, one value an episode (NaN where no update ran)
+        assert curves["episode_loss"].unit == "episode" and len(curves["episode_loss"].values) == 3

@@ -15,7 +15,7 @@ from fixbench.cases.problem import load_problem
 from fixbench.solvers.registry import BUILTIN
 
 #: the README's groups of planners (section Planners)
-FAMILIES = {"marl": {"nashq", "iql", "vdn", "mappo", "ippo"}, "bandit": {"surrogate-ts", "gp-ucb"},
+FAMILIES = {"marl": {"nashq", "iql", "vdn", "mappo", "ippo", "qmix"}, "bandit": {"surrogate-ts", "gp-ucb"},
             "evolutionary": {"ga", "pso"},
             "local-search": {"local", "greedy"}, "case-based": {"cbr"}, "qp": {"qp"},
             "bayesian-optimisation": {"optuna"}, "rules": {"rules"}, "random": {"random"}, "exact": {"exact"}}

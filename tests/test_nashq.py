@@ -84,9 +84,11 @@ def test_valid_layouts_within_budget(problem, name):
     assert r.samples == 9 and r.info["episodes_run"] == 3 and r.layouts.shape == (3, problem.n_agents)
     problem.check_layouts(r.layouts)
     json.dumps(r.info)
-    i = r.info
-    assert len(i["step_reward"]) == 9 and len(i["episode_return"]) == 3 and len(i["td_loss"]) == problem.n_agents
-    assert all(x >= -1e-15 for x in i["episode_regret_true"])
+    c = r.training.curves
+    assert len(c["step_reward"].values) == 9 and len(c["episode_return"].values) == 3
+    assert {k for k in c if k.startswith("td_loss/")} == {f"td_loss/agent{i}" for i in range(problem.n_agents)}
+    assert all(len(c[f"td_loss/agent{i}"].values) == 3 for i in range(problem.n_agents))
+    assert (c["episode_regret_true"].values >= -1e-15).all()
     r = get(name)(episodes=100, hidden=32).solve(problem, budget=7, seed=0)  # best effort: 2 episodes
     assert r.samples == 6 and r.info["budget_limited"]
     with pytest.raises(PlannerError):
@@ -98,16 +100,16 @@ def test_valid_layouts_within_budget(problem, name):
 @pytest.mark.parametrize("name", ["nashq", "iql"])
 def test_same_seed_same_curves(problem, name):
     a, b, c = (get(name)(**SMALL).solve(problem, None, seed=s) for s in (3, 3, 4))
-    for key in ("step_reward", "td_loss", "episode_regret_ref"):
-        assert a.info[key] == b.info[key]
+    for key in ("step_reward", "td_loss/agent0", "episode_regret_ref"):
+        assert a.training.values(key).tobytes() == b.training.values(key).tobytes()
     assert (a.layouts == b.layouts).all()
-    assert a.info["step_reward"] != c.info["step_reward"]
+    assert a.training.values("step_reward").tobytes() != c.training.values("step_reward").tobytes()
 
 
 def test_held_out_tasks_cost_nothing(problem):
     r = get("nashq")(train_tasks=(0, 2), **SMALL).solve(problem, None, seed=0)
     assert r.samples == 3 * 2 and r.info["held_out_tasks"] == [1]
-    assert set(r.info["step_task"]) == {0, 2}
+    assert set(r.training.values("step_task")) == {0, 2}
     problem.check_layouts(r.layouts)
 
 
@@ -144,7 +146,7 @@ def test_figure4_panels(problem, tmp_path):
     from studies.marl import figure4
 
     r = get("iql")(**SMALL).solve(problem, None, seed=0)
-    paths = figure4({"iql": r, "iql info": r.info}, tmp_path)
+    paths = figure4({"iql": r, "iql training": r.training}, tmp_path)
     assert len(paths) == 4 and all(p.stat().st_size > 0 for p in paths)
 
 
@@ -288,7 +290,7 @@ def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
     r = get("nashq")(**SMALL).solve(problem, None, seed=0)
     problem.check_layouts(r.layouts)
     assert r.samples == 9 and len(copies) > 1  # training steps' best responses and the greedy policy
-    assert np.isfinite(r.info["td_loss"]).all()
+    assert all(np.isfinite(r.training.values(f"td_loss/agent{i}")).all() for i in range(problem.n_agents))
 
 
 @pytest.mark.parametrize("name", ["nashq", "iql"])

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 import fixbench.cases.references as refs
-from fixbench.bench.running.cells import compute_reference
-from fixbench.bench.running.references import Portfolio, build, rescore, update
+from fixbench.bench.running.references import Portfolio, build, compute_reference, rescore, update
 from fixbench.bench.running.store import CHECKSUM, Store, row_checksum, write_json_atomic
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
@@ -123,6 +122,8 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert now["provenance"][-1]["action"] == "update"
     rows = store.finished()
     assert set(rows) == {"honest", "liar"}  # rescored rows keep valid checksums: none reads as damaged
+    raw = json.loads(store.row_path("honest").read_text())  # written by hand as schema 1: rewritten as 2
+    assert raw["schema"] == 2 and raw["layouts"] == good and rows["honest"]["per_task_m"] == true
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent

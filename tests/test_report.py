@@ -72,10 +72,10 @@ def fake_run(root: Path, seeds=(0, 1, 2), failed: dict | None = None, references
             for seed in seeds:
                 cid = f"{planner}-{mat}-{seed}"
                 row = {k: math.nan for k in ROW_SCHEMA}
-                row.update(schema=1, cell=cid, planner=planner, config="{}", config_hash="h",
+                row.update(cell=cid, planner=planner, config={}, config_hash="h",
                            case="fan_small", part="fan", material=mat, agents=3, mode="per-task",
-                           budget=300, seed=seed, n_tasks=2, version="test", error="", info="{}",
-                           layouts=json.dumps([[18, 46, 74], [18, 46, 74]]))
+                           budget=300, seed=seed, n_tasks=2, version="test", error="", info={},
+                           layouts=[[18, 46, 74], [18, 46, 74]])
                 err = failed.get((planner, mat, seed))
                 if err:
                     row.update(error=err, objective_m=1.0, relative_regret=1e6, wall_s=1e6)
@@ -208,7 +208,7 @@ def test_real_run_and_cli(tmp_path, plate_toml, monkeypatch, capsys):
     summary = run_matrix(tmp_path / "m.toml", tmp_path / "run", workers=1, progress=False)
     assert summary["failed"] == 0
     rows = load_results(tmp_path / "run")
-    assert all(len(json.loads(x)) == 3 for x in rows["layouts"])  # rows keep their layouts per task
+    assert all(isinstance(x, list) and len(x) == 3 for x in rows["layouts"])  # rows keep their layouts per task
     assert main(["report", str(tmp_path / "run")]) == 0
     assert "wrote" in capsys.readouterr().out
     rep = tmp_path / "run" / "report"
@@ -241,12 +241,12 @@ def _sweep_row(cid, case, label, planner, mode, seed, spt, per_task, scored, **e
     opt = np.asarray(SWEEP_OPT)
     obj, ref = float(per_task[scored].mean()), float(opt[scored].mean())
     row = {k: math.nan for k in ROW_SCHEMA}
-    row.update(schema=1, cell=cid, planner=planner, config="{}", config_hash="h", label=label, case=case,
+    row.update(cell=cid, planner=planner, config={}, config_hash="h", label=label, case=case,
                part="plate", material="aluminium", agents=3, mode=mode, seed=seed, n_tasks=4,
                samples_per_task=spt, budget=math.nan if math.isnan(spt) else spt * 4,
-               n_scored_tasks=len(scored), per_task_m=json.dumps(per_task.tolist()), objective_m=obj,
+               n_scored_tasks=len(scored), per_task_m=per_task.tolist(), objective_m=obj,
                reference_objective_m=ref, relative_regret=obj / ref - 1, samples=0 if math.isnan(spt) else spt * 4,
-               reference_source="exact", version="test", error="", info="{}", wall_s=0.1, cpu_s=0.1)
+               reference_source="exact", version="test", error="", info={}, wall_s=0.1, cpu_s=0.1)
     row.update(extra)
     return row
 
@@ -296,8 +296,8 @@ def test_labels_come_from_rows(swept, tmp_path):
     rows = load_rows(run)
     assert set(rows["label"]) == {"exact", "random", "greedy+transfer", "nashq"}
     store = Store(tmp_path / "labels")
-    entries = [("greedy", "{}", ""), ("greedy", '{"transfer": 3}', "greedy+transfer"),
-               ("ga", "{}", math.nan), ("ga", '{"transfer": 3}', math.nan)]
+    entries = [("greedy", {}, ""), ("greedy", {"transfer": 3}, "greedy+transfer"),
+               ("ga", {}, math.nan), ("ga", {"transfer": 3}, math.nan)]
     for i, (planner, config, label) in enumerate(entries):
         row = {k: math.nan for k in ROW_SCHEMA}
         row.update(cell=f"c{i}", planner=planner, config=config, label=label, case="c", material="m", seed=0,
@@ -499,7 +499,7 @@ def test_iqm_table_pools_positions_and_leaves_out_the_tails():
         for mode in ("per-task", "held-out"):
             recs.append(dict(case="c", material="m", agents=2, n_tasks=6, mode=mode, heldout_every=3, seed=seed,
                              label="p", ok=True, relative_regret=0.5,
-                             per_task_m=json.dumps([o * x for o, x in zip(opt, r)])))
+                             per_task_m=[o * x for o, x in zip(opt, r)]))
     table = iqm_table(pd.DataFrame(recs), refs).set_index("planner")
     pooled = (np.array(ratios[0] + ratios[1]) - 1) * 100
     assert table.loc["p", "c (per-task)"] == pytest.approx(trim_mean(pooled, 0.25))

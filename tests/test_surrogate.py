@@ -30,6 +30,11 @@ def test_spends_exactly_its_budget_and_repeats_bit_for_bit(problem):
     np.testing.assert_array_equal(first.trace, again.trace)  # every sample's best, in order
     np.testing.assert_array_equal(first.max_deformation, again.max_deformation)
     assert first.info["final_loss"] == again.info["final_loss"]
+    loss = first.training.curves["fit_loss"]  # one value a fit (one a round here), the last the info's final_loss
+    assert loss.unit == "fit" and len(loss.values) == first.info["rounds"]
+    assert loss.values[-1] == first.info["final_loss"]
+    assert loss.values.tobytes() == again.training.values("fit_loss").tobytes()
+    assert len(first.training.values("round_samples")) == first.info["rounds"] + 1  # round 0 and the rounds
     other = SurrogateTS(train_steps=20).solve(small, budget, seed=6)
     assert not np.array_equal(first.trace, other.trace)
 

@@ -8,7 +8,6 @@ the sweep and the held-out comparison.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -121,7 +120,7 @@ def test_tracks_end_to_end(tmp_path):
         n_train = 2 if r["mode"] == "held-out" else 6
         assert r["budget"] == r["samples_per_task"] * n_train
         assert r["samples"] <= r["budget"]
-        u = np.asarray(json.loads(r["per_task_m"]))
+        u = np.asarray(r["per_task_m"])
         assert len(u) == 6 and r["reference_source"] == "exact"
         scored = [1, 2, 4, 5] if r["mode"] == "held-out" else list(range(6))
         assert r["n_scored_tasks"] == len(scored)

@@ -11,7 +11,7 @@ import torch
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.learners import task_features
+from fixbench.solvers.encoding import task_features
 from fixbench.solvers.vdn import VDN, Actions, SharedQ, greedy, q_tot
 
 
@@ -29,8 +29,8 @@ def test_spends_exactly_its_budget_and_repeats_bit_for_bit(small):
     again = VDN().solve(small, budget, seed=4)
     np.testing.assert_array_equal(first.layouts, again.layouts)
     np.testing.assert_array_equal(first.policy_layouts, again.policy_layouts)
-    assert first.info["step_max_u"] == again.info["step_max_u"]
-    assert first.info["episode_loss"] == again.info["episode_loss"]
+    for curve in ("step_max_u", "episode_loss"):
+        assert first.training.values(curve).tobytes() == again.training.values(curve).tobytes()
     unlimited = VDN(episodes=3).solve(small, None, seed=0)
     assert unlimited.samples == 3 * small.n_tasks and not unlimited.info["budget_limited"]
     with pytest.raises(PlannerError, match="budget too small"):
@@ -40,7 +40,7 @@ def test_spends_exactly_its_budget_and_repeats_bit_for_bit(small):
 def test_greedy_joint_action_is_the_argmax_of_the_summed_q():
     """VDN's decomposition: the agents' own argmaxes are the joint argmax of Q_tot (brute force)."""
     p = Problem(load_case_spec("fan_small", n_agents=2).with_tasks([0, 5]))
-    acts, feats = Actions(p), torch.tensor(task_features(p), dtype=torch.float32)
+    acts, feats = Actions(p), torch.tensor(task_features(p, "min-max"), dtype=torch.float32)
     q = SharedQ(feats.shape[1] + acts.rows.shape[1], 16, 2, torch.Generator().manual_seed(1))
     joint = torch.tensor(list(itertools.product(*(range(len(s)) for s in p.action_sets))))
     for t in range(p.n_tasks):

@@ -3,7 +3,6 @@ group's interval; and the sample, the interval and the code-path note on their o
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -130,8 +129,8 @@ def test_prediction_interval():
 
 def test_code_path_note():
     here = dict(provenance(), env={})
-    assert code_path_note(None, json.dumps(here)) == "the row records no provenance"
-    assert code_path_note(json.dumps(here), json.dumps(here)) == ""
+    assert code_path_note(None, here) == "the row records no provenance"
+    assert code_path_note(here, here) == ""
     there = dict(here, cpu="Other CPU", env={**here["env"], "MKL_CBWR": "AVX2"})
-    note = code_path_note(json.dumps(there), json.dumps(here))
+    note = code_path_note(there, here)
     assert "cpu Other CPU -> " in note and "env.MKL_CBWR AVX2 -> -" in note

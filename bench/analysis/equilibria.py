@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fixbench.cases.problem import Problem
+from fixbench.solvers.descent import descend, table_scores
 
 #: layouts per oracle call while enumerating (memory against call overhead; same result)
 CHUNK = 2**18
@@ -53,7 +54,7 @@ def pbp_mask(table: np.ndarray) -> np.ndarray:
     return mask
 
 
-def best_response_descent(table: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def best_response_descent(table: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Greedy best response from each start (flat indices into ``table``), all starts at once.
 
     Agents take turns 0, 1, ..., n-1, 0, ...; at its turn an agent moves to its best response (the
@@ -61,29 +62,20 @@ def best_response_descent(table: np.ndarray, starts: np.ndarray) -> tuple[np.nda
     strictly lower than the current value. A descent stops once n turns in a row made no move: a PBP
     optimum. Every move lowers the value, so every descent stops. Returns the flat index where each
     descent stopped, the number of moves it made and the layouts a planner doing it on the oracle
-    would evaluate (the start, then every other candidate of the agent at each turn, as ``greedy``).
+    would evaluate (the start, then every other candidate of the agent at each turn). The descent is
+    :func:`fixbench.solvers.descent.descend` (``ties="stay"``, ``stop="all"``).
     """
     shape, n = table.shape, table.ndim
-    flat = table.ravel()
-    best = [np.argmin(table, axis=a) for a in range(n)]  # each agent's best response to the others
     state = np.array(np.unravel_index(np.asarray(starts, dtype=np.int64), shape)).T.reshape(-1, n)
-    idle = np.zeros(len(state), dtype=np.int64)  # turns in a row without a move
-    moves = np.zeros(len(state), dtype=np.int64)
     samples = np.ones(len(state), dtype=np.int64)
-    agent = 0
-    while (idle < n).any():
-        live = np.flatnonzero(idle < n)
-        s = state[live]
-        others = tuple(np.delete(s, agent, axis=1).T)
-        to = s.copy()
-        to[:, agent] = best[agent][others]
-        better = flat[np.ravel_multi_index(to.T, shape)] < flat[np.ravel_multi_index(s.T, shape)]
-        state[live[better]] = to[better]
-        moves[live[better]] += 1
-        samples[live] += shape[agent] - 1
-        idle[live] = np.where(better, 0, idle[live] + 1)
-        agent = (agent + 1) % n
-    return np.ravel_multi_index(state.T, shape), moves, samples
+    scores = table_scores(table)
+
+    def score(i: int, rows: np.ndarray, cur: np.ndarray) -> np.ndarray:
+        samples[rows] += shape[i] - 1
+        return scores(i, rows, cur)
+
+    out = descend(score, state, range(n), ties="stay", stop="all")
+    return np.ravel_multi_index(out.layout.T, shape), out.moves, samples
 
 
 @dataclass(frozen=True)

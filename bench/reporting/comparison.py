@@ -23,24 +23,22 @@ a learner's policy is never in the ranking, only in ``policy_table``.
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.running.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
 bootstraps (:func:`fixbench.bench.reporting.stats.mean_ci`,
-:func:`fixbench.bench.reporting.stats.probability_of_improvement`), so the same rows always give the
-same tables.
+:func:`fixbench.bench.reporting.stats.probability_of_improvement`), so the same rows always give the same tables.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement, ref_key
+from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement
 from fixbench.bench.reporting.tables import ci_column, fmt, setting_text
+from fixbench.bench.running.keys import RANKED, reference_of, split
 
 #: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
-RANK_PROBLEM = ("case", "material", "seed", "agents", "n_tasks", "mode")
 
 #: the headline's families of planners (``Planner.family``), in its order, with their headings; a family
 #: not listed (a plugin's own) follows under its own name
@@ -91,21 +89,16 @@ def show_sweep(table: pd.DataFrame) -> pd.DataFrame:
 
 # the held-out track ---------------------------------------------------------------------------------
 
-def heldout_tasks(n_tasks: int, every: int) -> list[int]:
-    """The tasks a held-out cell acts on without samples: those not in range(0, n_tasks, every)."""
-    return [t for t in range(n_tasks) if t % every]
-
-
 def _heldout_regret(row, refs: dict, every: int) -> float:
     """Relative regret of a per-task row on the held-out tasks only: mean of its per-task max
     deformation over them against the reference's mean over them; NaN without either."""
-    ref = refs.get(ref_key(row))
+    ref = refs.get(reference_of(row))
     per_task = row.get("per_task_m")
-    if ref is None or not isinstance(per_task, str) or not per_task:
+    if ref is None or not isinstance(per_task, list) or not per_task:
         return math.nan
-    u = np.asarray(json.loads(per_task), dtype=float)
+    u = np.asarray(per_task, dtype=float)
     opt = np.asarray(ref["per_task"], dtype=float)
-    idx = heldout_tasks(int(row["n_tasks"]), every)
+    idx = split(int(row["n_tasks"]), every)[1]
     if not idx or not len(u) == len(opt) == int(row["n_tasks"]):
         return math.nan
     return float(u[idx].mean() / opt[idx].mean() - 1)
@@ -213,7 +206,7 @@ def problem_ranks(rows: pd.DataFrame) -> pd.DataFrame:
     budget level): 1 = lowest objective, failed cells last (ties share the mean rank). A cell without a
     budget level (a planner with its own budget, e.g. ``exact`` unlimited) competes at every level of its
     other keys; planners without a cell on a problem take no part in it."""
-    keys = list(RANK_PROBLEM)
+    keys = list(RANKED)
     rows = _with_case_defaults(rows)
     d = rows.assign(level=_budget_level(rows),
                     obj=np.where(rows["ok"] & np.isfinite(rows["objective_m"]), rows["objective_m"], np.inf))
@@ -253,7 +246,7 @@ def common_ranks(rows: pd.DataFrame) -> tuple[pd.DataFrame, int, int]:
     rank compares like with like; where no problem has them all, on every problem. Returns (ranks,
     problems used, problems in all)."""
     ranks = problem_ranks(rows)
-    keys = [*RANK_PROBLEM, "level"]
+    keys = [*RANKED, "level"]
     present = ranks.groupby(keys, dropna=False)["label"].transform("nunique")
     common = ranks[present == ranks["label"].nunique()]
     n_all = len(ranks[keys].drop_duplicates())
@@ -354,16 +347,16 @@ def show_policy(table: pd.DataFrame) -> pd.DataFrame:
 def _position_regrets(row, refs: dict) -> np.ndarray | None:
     """A row's relative regret (%) on each task it is scored on, against the reference's value there
     (held-out rows: the held-out tasks); None without a per-task list or a reference."""
-    ref = refs.get(ref_key(row))
+    ref = refs.get(reference_of(row))
     per_task = row.get("per_task_m")
-    if ref is None or not isinstance(per_task, str) or not per_task:
+    if ref is None or not isinstance(per_task, list) or not per_task:
         return None
-    u = np.asarray(json.loads(per_task), dtype=float)
+    u = np.asarray(per_task, dtype=float)
     opt = np.asarray(ref["per_task"], dtype=float)
     n = int(row["n_tasks"])
     if not len(u) == len(opt) == n:
         return None
-    idx = heldout_tasks(n, int(row["heldout_every"])) if row["mode"] == "held-out" else list(range(n))
+    idx = split(n, int(row["heldout_every"]))[1] if row["mode"] == "held-out" else list(range(n))
     return (u[idx] / opt[idx] - 1) * 100
 
 

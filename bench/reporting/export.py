@@ -73,8 +73,9 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
 
 ``csv``
     ``OUT/rows.csv`` (one row per finished cell, the columns of ``ROW_SCHEMA``, NaN as an empty
-    field), ``OUT/traces.csv`` (``cell, task, task_samples, samples, best``) and, when the run has
-    learners, ``OUT/curves.csv`` (``cell, curve, index, value``).
+    field, the JSON columns (config, per-task values, layouts, info, provenance) as JSON text),
+    ``OUT/traces.csv`` (``cell, task, task_samples, samples, best``) and, when the run has learners,
+    ``OUT/curves.csv`` (``cell, curve, index, value``).
 
 Cells whose row carries an error are left out of every format but ``csv`` (which keeps all rows);
 IOHprofiler also leaves out cells that spent no sample (IOHanalyzer drops runs of zero
@@ -102,7 +103,16 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.reporting.tables import config_text
-from fixbench.bench.running.store import ROW_SCHEMA, TRACE_COLUMNS, load_curves, load_results, load_traces
+from fixbench.bench.running.keys import problem_of
+from fixbench.bench.running.store import (
+    JSON_COLUMNS,
+    ROW_SCHEMA,
+    TRACE_COLUMNS,
+    json_text,
+    load_curves,
+    load_results,
+    load_traces,
+)
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
@@ -138,8 +148,11 @@ def load_run(run_dir: str | Path) -> pd.DataFrame:
 
 
 def _problem_key(r) -> tuple:
-    k = int(r.heldout_every) if r.mode == "held-out" and not _nan(r.heldout_every) else 0
-    return (str(r.case), str(r.material), _int(r.agents), _int(r.n_tasks), str(r.mode), k)
+    """One exported problem: the row's :data:`~fixbench.bench.running.keys.PROBLEM` and its held-out
+    level (0: none), since other tools cannot tell the tracks apart by mode alone."""
+    case, material, agents, n_tasks, mode = problem_of(r._asdict())
+    k = int(r.heldout_every) if mode == "held-out" and not _nan(r.heldout_every) else 0
+    return (str(case), str(material), _int(agents), _int(n_tasks), str(mode), k)
 
 
 def _problem_name(key: tuple, with_case: bool = True) -> str:
@@ -435,7 +448,10 @@ def strict_json(data) -> str:
 # CSV ------------------------------------------------------------------------------------------------
 
 def write_csv(rows: pd.DataFrame, traces: pd.DataFrame, curves: pd.DataFrame, out: Path) -> dict:
-    rows[list(ROW_SCHEMA)].to_csv(out / "rows.csv", index=False)
+    table = rows[list(ROW_SCHEMA)].copy()
+    for c in JSON_COLUMNS:  # a list or object in a CSV field: its JSON text
+        table[c] = [json_text(v) if isinstance(v, (list, dict)) else v for v in table[c]]
+    table.to_csv(out / "rows.csv", index=False)
     cols = ["cell", *TRACE_COLUMNS]
     tr = traces[cols].copy() if not traces.empty else pd.DataFrame(columns=cols)
     for c in ("task", "task_samples", "samples"):

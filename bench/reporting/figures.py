@@ -8,8 +8,8 @@ planner label for the whole report; figures with several panels share one legend
 
 from __future__ import annotations
 
-import json
 import math
+from collections.abc import Mapping
 
 import matplotlib
 
@@ -22,8 +22,10 @@ import seaborn as sns  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator  # noqa: E402
 
 from fixbench.bench.reporting.plots import outline  # noqa: E402
-from fixbench.bench.reporting.stats import BOOT_SEED, TARGETS, on_grid, ref_key, runtime, sample_grid  # noqa: E402
+from fixbench.bench.reporting.stats import BOOT_SEED, TARGETS, on_grid, runtime, sample_grid  # noqa: E402
+from fixbench.bench.running.keys import reference_of  # noqa: E402
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD  # noqa: E402
+from fixbench.solvers.base import Training  # noqa: E402
 
 #: relative regrets (%) below this are drawn at it on log axes (a regret of 0 has no logarithm)
 REGRET_FLOOR_PCT = 1e-3
@@ -191,25 +193,38 @@ def sweep_figure(table: pd.DataFrame, colors: dict):
 
 # learners: the seed paper's Figure 4 ----------------------------------------------------------------
 
-#: the training curves Figure 4 draws (a learner's ``info`` holds them; a run directory stores them)
+#: the training curves Figure 4 draws, by the names a learner declares them under (its ``Training``:
+#: ``step_*`` one value a training step, ``episode_*`` one an episode; a run directory stores them)
 FIGURE4_CURVES = ("step_reward", "episode_return", "episode_regret_ref", "episode_regret_true", "step_max_u",
                   "step_task")
 
 
+def figure4_run(curves: Mapping[str, np.ndarray], optimum: np.ndarray | None = None) -> dict:
+    """One run of Figure 4's input: the ``FIGURE4_CURVES`` among ``curves`` (name -> values; empty where the
+    learner declared none: its panels are drawn without it) and ``optimum``, the per-task optima (or None)."""
+    return {**{k: np.asarray(curves.get(k, ()), dtype=float) for k in FIGURE4_CURVES}, "optimum": optimum}
+
+
+def training_run(training: Training) -> dict:
+    """Figure 4's input of one :class:`~fixbench.solvers.base.Training` (a run's own, no optima)."""
+    return figure4_run({name: c.values for name, c in training.curves.items()})
+
+
 def learner_runs(ok: pd.DataFrame, curves: pd.DataFrame, cells: list[str], refs: dict) -> dict[str, list[dict]]:
-    """Figure 4's input from a run directory: {label: [one dict a cell]}, labels sorted; each dict holds
-    the cell's ``FIGURE4_CURVES`` (empty where not stored) and ``optimum``, the per-task optima of its
-    regret reference (None without one)."""
+    """Figure 4's input from a run directory: {label: [one dict a cell]}, labels sorted; each dict is
+    :func:`figure4_run` of the cell's stored curves, ``optimum`` the per-task optima of its regret
+    reference (None without one)."""
     info = ok.set_index("cell")
     sub = curves[curves["cell"].isin(cells)].sort_values(["cell", "curve", "index"], kind="stable")
-    by = {k: g["value"].to_numpy(dtype=float) for k, g in sub.groupby(["cell", "curve"], sort=False)}
+    by = {c: {k: g["value"].to_numpy(dtype=float) for k, g in gc.groupby("curve", sort=False)}
+          for c, gc in sub.groupby("cell", sort=False)}
     runs = {}
     for lab in sorted(info.loc[cells, "label"].unique()):
         runs[lab] = []
         for c in (c for c in cells if info.loc[c, "label"] == lab):
-            ref = refs.get(ref_key(info.loc[c]))
-            runs[lab].append({**{k: by.get((c, k), np.zeros(0)) for k in FIGURE4_CURVES},
-                              "optimum": None if ref is None else np.asarray(ref["per_task"], dtype=float)})
+            ref = refs.get(reference_of(info.loc[c]))
+            runs[lab].append(figure4_run(by.get(c, {}),
+                                         None if ref is None else np.asarray(ref["per_task"], dtype=float)))
     return runs
 
 
@@ -258,13 +273,35 @@ def _smooth(a: np.ndarray) -> np.ndarray:
     return pd.Series(a).rolling(w, min_periods=1).mean().to_numpy() if w > 1 else a
 
 
+def _true_regret(r: dict) -> tuple[np.ndarray, np.ndarray, str]:
+    """One run's episodic true regret (um; panel c2), each training step's deformation above the optimum
+    (%; panel d) and what the optimum is: the regret reference's per-task optima, else the best layout
+    the run saw on each task (the run's declared ``episode_regret_true``, else the same sum from its
+    steps)."""
+    u, task, eps = r["step_max_u"], r["step_task"].astype(int), len(r["episode_return"])
+    steps, empty = len(u) > 0 and len(u) == len(task), np.zeros(0)
+    whole = eps > 0 and len(u) % eps == 0  # the steps split into the episodes
+    if r["optimum"] is not None and steps:
+        opt = r["optimum"][task]
+        return (u - opt).reshape(eps, -1).sum(axis=1) * 1e6 if whole else empty, (u / opt - 1) * 100, \
+            "reference optimum"
+    regret = r["episode_regret_true"] * 1e6
+    if not steps:
+        return regret, empty, "best seen in the run"
+    best = pd.Series(u).groupby(task).transform("min").to_numpy()
+    if not len(regret) and whole:
+        regret = (u - best).reshape(eps, -1).sum(axis=1) * 1e6
+    return regret, (u / best - 1) * 100, "best seen in the run"
+
+
 def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
     """The seed paper's Figure 4 of learners' training runs on ``axes`` (a, b, c, c2, d): (a) step reward,
     (b) episodic return, (c) episodic regret (the reference code's, and c2 the true regret against each
     task's optimum, or the best layout the run saw on it without one), (d) violin of the deformation of
     every layout tried in training above that optimum. ``runs``: {label: [run, ...]}, each run a dict of
-    ``FIGURE4_CURVES`` and ``optimum`` (:func:`learner_runs`); one line a label, the median over its runs
-    with the interquartile band."""
+    ``FIGURE4_CURVES`` and ``optimum`` (:func:`figure4_run`); one line a label, the median over its runs
+    with the interquartile band; a learner draws in the panels whose curves it declared (a panel none
+    has data for says so)."""
     ax_a, ax_b, ax_c, ax_c2, ax_d = axes
     violin, true_src = [], set()
     for lab, lc in runs.items():
@@ -274,20 +311,11 @@ def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
         _median_band(ax_c, [r["episode_regret_ref"] for r in lc], 1, col, lab)
         true_reg = []
         for r in lc:
-            u, task = r["step_max_u"], r["step_task"].astype(int)
-            eps = len(r["episode_return"])
-            if r["optimum"] is not None and len(u) and len(u) == len(task):
-                opt = r["optimum"][task]
-                true_src.add("reference optimum")
-                if eps and len(u) % eps == 0:
-                    true_reg.append((u - opt).reshape(eps, -1).sum(axis=1) * 1e6)
-                violin.append(pd.DataFrame({"planner": lab, "diff": (u / opt - 1) * 100}))
-            else:
-                true_src.add("best seen in the run")
-                true_reg.append(r["episode_regret_true"] * 1e6)
-                if len(u) and len(u) == len(task):
-                    best = pd.Series(u).groupby(task).transform("min").to_numpy()
-                    violin.append(pd.DataFrame({"planner": lab, "diff": (u / best - 1) * 100}))
+            regret, above, source = _true_regret(r)
+            true_reg.append(regret)
+            true_src.add(source)
+            if len(above):
+                violin.append(pd.DataFrame({"planner": lab, "diff": above}))
         _median_band(ax_c2, true_reg, 1, col, lab)
     ax_a.set(xlabel="training step", ylabel="step reward (Gaussian)", title="(a) step reward")
     ax_b.set(xlabel="episode", ylabel="episodic return", title="(b) episodic return")
@@ -295,8 +323,13 @@ def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
              title="(c) episodic regret (reference code)")
     ax_c2.set(xlabel="episode", ylabel="sum of (max |u| - u*) (um)",
               title=f"(c) episodic true regret vs {' / '.join(sorted(true_src)) or '-'}")
-    for ax in (ax_a, ax_b, ax_c, ax_c2):
-        ax.legend(fontsize=7)
+    panel_needs = ("step_reward", "episode_return", "episode_regret_ref",
+                   "step_max_u, step_task and episode_return, or episode_regret_true")
+    for ax, needs in zip((ax_a, ax_b, ax_c, ax_c2), panel_needs):
+        if ax.lines:
+            ax.legend(fontsize=7)
+        else:  # no learner of the figure declared the curve this panel draws
+            ax.text(0.5, 0.5, f"no learner declares {needs}", transform=ax.transAxes, ha="center", fontsize=8)
         ax.title.set_fontsize(9)
     if violin:
         d = pd.concat(violin, ignore_index=True)
@@ -330,7 +363,7 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict, name: str | None = Non
     d = d[d["material"] == mat]
     first = d.iloc[0]
     problem = _problem_for_row(first)
-    ref = refs.get(ref_key(first))
+    ref = refs.get(reference_of(first))
     task = int(np.argmax(ref["per_task"])) if ref is not None and first["mode"] != "shared" else 0
     panels = []
     if ref is not None and ref.get("layouts") and first["mode"] != "shared":
@@ -338,7 +371,7 @@ def field_figure(ok: pd.DataFrame, case: str, refs: dict, name: str | None = Non
                        ref["layouts"][task]))
     for lab in sorted(d["label"].unique()):
         best = d[d["label"] == lab].sort_values(["objective_m", "seed"], kind="stable").iloc[0]
-        lay = json.loads(best["layouts"])
+        lay = best["layouts"]
         panels.append((f"{lab} (seed {int(best['seed'])})", lay[min(task, len(lay) - 1)]))
     model = problem.model
     tri = mtri.Triangulation(model.mesh.p[0] * 1e3, model.mesh.p[1] * 1e3, model.mesh.t.T)

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 from pathlib import Path
 
 import pandas as pd
 from markdown_it import MarkdownIt
+
+from fixbench.bench.running.store import json_text
 
 STYLE = """body{font-family:system-ui,sans-serif;max-width:72rem;margin:2rem auto;padding:0 1rem;line-height:1.45}
 table{border-collapse:collapse;margin:1rem 0;font-size:.85rem}th,td{border:1px solid #ccc;padding:.2rem .5rem}
@@ -51,14 +52,16 @@ def write_html(report: Path, rows: pd.DataFrame, matrices: list[Path]) -> Path:
 def provenance_html(rows: pd.DataFrame) -> str:
     """The distinct provenance records of ``rows`` side by side (one column a record, with its cells),
     or why there are none."""
-    recs = [v for v in rows.get("provenance", pd.Series(dtype=object)) if isinstance(v, str)]
+    recs = [v for v in rows.get("provenance", pd.Series(dtype=object)) if isinstance(v, dict)]
     missing = len(rows) - len(recs)
     note = (f"<p>Not recorded for {missing} cells (made before rows carried their provenance).</p>"
             if missing else "")
     if not recs:
         return note
-    counts = pd.Series(recs).value_counts(sort=False)
-    table = pd.DataFrame({f"record {i + 1} ({n} cells)": _flat(json.loads(r)) for i, (r, n) in
+    texts = [json_text(r) for r in recs]  # a record's canonical text: what records are grouped on
+    first = dict(zip(reversed(texts), reversed(recs)))  # each record as its first row holds it
+    counts = pd.Series(texts).value_counts(sort=False)
+    table = pd.DataFrame({f"record {i + 1} ({n} cells)": _flat(first[t]) for i, (t, n) in
                           enumerate(counts.items())})
     return table.fillna("-").to_html(escape=True, border=0) + note
 

@@ -27,7 +27,6 @@ the tables from :mod:`fixbench.bench.reporting.tables` and :mod:`fixbench.bench.
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -307,7 +306,7 @@ def make_report(run_dir: str | Path | Sequence[str | Path], out: str | Path | No
 
 def _hosts(rows: pd.DataFrame) -> list[str]:
     """Report lines: the hosts the run's rows were made on (their provenance), with the cells of each."""
-    rec = [json.loads(v) for v in rows.get("provenance", pd.Series(dtype=object)) if isinstance(v, str)]
+    rec = [v for v in rows.get("provenance", pd.Series(dtype=object)) if isinstance(v, dict)]
     if not rec:
         return [f"Hosts: not recorded ({len(rows)} cells made before rows carried their provenance).", ""]
     hosts = pd.Series([host_key(r) for r in rec]).value_counts()

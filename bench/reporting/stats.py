@@ -18,6 +18,8 @@ import pandas as pd
 from scipy.stats import bootstrap, mannwhitneyu, trim_mean
 from scipy.stats import t as t_dist
 
+from fixbench.bench.running.keys import problem_of, reference_of
+
 #: the bootstrap's seed, resamples and confidence level
 BOOT_SEED = 20250101
 N_BOOT = 2000
@@ -26,8 +28,6 @@ LEVEL = 0.95
 TARGETS = (0.01, 0.02, 0.05, 0.10, 0.20)
 #: settings that split the summary into separate groups when the run varies them
 SETTINGS = ("agents", "mode", "budget", "samples_per_task")
-#: columns of a problem instance (cells with the same values share a regret reference)
-PROBLEM = ("case", "material", "agents", "n_tasks", "mode")
 
 
 # interval statistics ---------------------------------------------------------------------------------
@@ -121,20 +121,6 @@ def probability_of_improvement(x, y, seed: int = BOOT_SEED) -> tuple[float, floa
 
 # rows, references and traces -------------------------------------------------------------------------
 
-def ref_key(row) -> tuple | None:
-    """The key of a row's regret reference in :func:`fixbench.bench.reporting.merge.load_references`:
-    (case, material, agents, n_tasks); None when the row lacks them (a failed cell)."""
-    try:
-        return (row["case"], row["material"], int(row["agents"]), int(row["n_tasks"]))
-    except (TypeError, ValueError):
-        return None
-
-
-def problem_key(row) -> tuple:
-    """A row's problem instance (``PROBLEM``): cells with the same key share each task's optimum."""
-    return tuple(row[c] for c in PROBLEM)
-
-
 def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bool]:
     """Optimum per (problem, task): the reference's, or else the best value seen in the run
     (traces and final rows). Returns the dict and whether any fallback was used."""
@@ -143,7 +129,7 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
     if traces.empty or ok.empty:
         return out, fallback
     info = ok.set_index("cell")
-    pkey = {c: problem_key(r) for c, r in info.iterrows()}
+    pkey = {c: problem_of(r) for c, r in info.iterrows()}
     tr = traces[traces["cell"].isin(info.index)]
     seen = tr.assign(pk=tr["cell"].map(pkey)).groupby(["pk", "task"])["best"].min()
     for cell, task in tr[["cell", "task"]].drop_duplicates().sort_values(["cell", "task"]).itertuples(
@@ -153,7 +139,7 @@ def optima(ok: pd.DataFrame, traces: pd.DataFrame, refs: dict) -> tuple[dict, bo
         key = (pk, int(task))
         if key in out:
             continue
-        ref = refs.get(ref_key(row))
+        ref = refs.get(reference_of(row))
         val = None
         if ref is not None:
             if row["mode"] == "shared":
@@ -175,7 +161,7 @@ def gap_traces(ok: pd.DataFrame, traces: pd.DataFrame, opt: dict) -> list[dict]:
     tr = traces[traces["cell"].isin(info.index)]
     for (cell, task), g in tr.groupby(["cell", "task"], sort=True):
         row = info.loc[cell]
-        o = opt.get((problem_key(row), int(task)))
+        o = opt.get((problem_of(row), int(task)))
         if o is None or not o > 0:
             continue
         g = g.sort_values("task_samples", kind="stable")

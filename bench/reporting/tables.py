@@ -9,7 +9,6 @@ summary); the comparison tables (main, sweep, held-out, probability of improveme
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -37,12 +36,9 @@ def ci_text(p, lo, hi) -> str:
 
 
 def config_text(config) -> str:
-    """A row's planner config (JSON text) as ``key=value,...`` in key order; other text as it is."""
-    try:
-        d = json.loads(config) if isinstance(config, str) and config else {}
-    except json.JSONDecodeError:
-        return str(config)
-    return ",".join(f"{k}={v}" for k, v in sorted(d.items()))
+    """A row's planner config (a JSON object) as ``key=value,...`` in key order ('' for none): the
+    canonical text tables group and name planners by."""
+    return ",".join(f"{k}={v}" for k, v in sorted(config.items())) if isinstance(config, dict) else ""
 
 
 def ci_column(df: pd.DataFrame, name: str) -> list[str]:

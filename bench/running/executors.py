@@ -1,6 +1,6 @@
 """Executors: run jobs (references and cells) on local processes or on a Ray cluster.
 
-Both call :func:`fixbench.bench.running.cells.execute` on every job and hand each result to the driver as soon as
+Both call :func:`execute` on every job and hand each result to the driver as soon as
 it is done, so results are identical whichever runs them (for deterministic planners). A job that
 exceeds the timeout is stopped and comes back as an error; so does a worker that dies.
 """
@@ -15,12 +15,24 @@ from multiprocessing.connection import wait
 
 import psutil
 
-from fixbench.bench.running.cells import execute
+from fixbench.bench.running.cells import run_cell
+from fixbench.bench.running.references import compute_reference, prove_position
 
 Job = tuple  # ("reference", args) | ("position", (position,)) | ("cell", (cell, reference))
 #: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 OnResult = Callable[[Job, dict | None, str], None]  # (job, result or None, error text)
+
+
+def execute(job: tuple) -> dict:
+    """Entry point of every executor: ("reference", args), ("position", (position,)) or ("cell", (cell, reference))."""
+    kind, payload = job
+    if kind == "reference":
+        return {"reference": compute_reference(*payload)}
+    if kind == "position":
+        return prove_position(payload[0])
+    cell, reference = payload
+    return run_cell(cell, reference)
 
 
 def _affinity(job: Job):

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fixbench.bench.running.keys import split
 from fixbench.cases.errors import CaseError
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import resolve_case
@@ -65,7 +66,7 @@ class Cell:
 
     def train_tasks(self, n_tasks: int) -> list[int] | None:
         """Held-out mode: the training tasks (every ``heldout_every``-th, from the first); else None."""
-        return list(range(0, n_tasks, self.heldout_every)) if self.mode == "held-out" else None
+        return split(n_tasks, self.heldout_every)[0] if self.mode == "held-out" else None
 
     def budget_for(self, n_tasks: int) -> int | None:
         """The cell's sample budget on a problem of ``n_tasks`` tasks."""

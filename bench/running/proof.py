@@ -1,8 +1,8 @@
 """The proof phase of ``fixbench run``: each problem's regret reference proven position by position.
 
-Where every layout of a position can be enumerated (:func:`fixbench.bench.running.cells.enumerates`: at most
+Where every layout of a position can be enumerated (:func:`fixbench.bench.running.references.enumerates`: at most
 ``exact``'s ``max_enumeration``, 10^8 layouts a position, and the matrix's ``proof_limit``), the
-driver hands out one job a position (:func:`fixbench.bench.running.cells.prove_position`) and, with shared
+driver hands out one job a position (:func:`fixbench.bench.running.references.prove_position`) and, with shared
 cells in the matrix, one for the shared optimum. Each finished position is appended at once to
 ``DIR/reference/KEY.proof.jsonl``::
 
@@ -15,7 +15,7 @@ so a run killed in the phase loses at most the positions being enumerated: a rer
 back and proves only the positions missing (a record cut short by the kill is dropped). The header
 must match the problem as it is now (case fingerprint, layouts a position, positions), else the
 records are of another case definition and the phase starts again. Once every position is in, the
-reference (``DIR/reference/KEY.json``, the same fields as :func:`fixbench.bench.running.cells.compute_reference`
+reference (``DIR/reference/KEY.json``, the same fields as :func:`fixbench.bench.running.references.compute_reference`
 writes) is assembled from the records in position order: the same bits whether the phase ran at once or
 was resumed (JSON keeps a float's every bit); only ``wall_s``, the sum of the positions' own times,
 depends on the host.
@@ -28,7 +28,8 @@ import os
 import sys
 from pathlib import Path
 
-from fixbench.bench.running.cells import Position, problem_for, reference_head
+from fixbench.bench.running.cells import problem_for
+from fixbench.bench.running.references import Position, reference_head
 from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_text_atomic
 

@@ -1,4 +1,13 @@
-"""The reference portfolio: an uncounted, large-budget search for the best layout of every task.
+"""Regret references in one place: the harness's side of them (the file format and its checks are
+:mod:`fixbench.cases.references`).
+
+**A run's references** (:func:`compute_reference`, :func:`prove_position`, :func:`shipped_reference`):
+each problem of a matrix is scored against ``exact``'s optimum where it can be had, position by
+position in the proof phase (:mod:`fixbench.bench.running.proof`), else against the case's shipped
+reference; :func:`rescore` brings a run's rows up to the shipped references as they are now, and
+:func:`update` merges into them every layout of a run that beats them.
+
+**The reference portfolio**: an uncounted, large-budget search for the best layout of every task.
 
 ``fixbench references build CASE [--material M] [--agents N]`` runs it and writes the shipped
 reference (:mod:`fixbench.cases.references`); ``fixbench references update DIR`` merges into the shipped
@@ -33,18 +42,163 @@ alone yields ``best-known``.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import io
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from fixbench.bench.running.cells import metrics, problem_for
+from fixbench.bench.running.keys import reference_key, reference_of, split
+from fixbench.bench.running.matrix import task_subset
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.references import case_fingerprint, load_reference, write_reference
 from fixbench.cases.spec import resolve_case
 
+# a run's references --------------------------------------------------------------------------------
+
+def reference_head(case: str, material: str | None, agents: int | None, tasks: int | None, p: Problem) -> dict:
+    """The fields every regret reference of the problem starts with (the problem ``p`` resolves the
+    material and agents), before its numbers are in."""
+    return {"key": reference_key(case, material, agents, tasks), "case": case, "material": p.spec.material.name,
+            "agents": p.n_agents, "n_tasks": p.n_tasks, "error": "", "per_task": None, "shared": None,
+            "proven": False, "gap": None, "samples": 0, "source": "",
+            "case_fingerprint": case_fingerprint(case, p.spec.material.name, p.n_agents)}
+
+
+def enumerates(p: Problem, proof_limit: int | None) -> bool:
+    """Whether the proof phase enumerates every layout of each position of ``p``, position by position:
+    at most ``proof_limit`` (the matrix's; None: no cap of its own) and ``exact``'s ``max_enumeration``
+    layouts a position."""
+    from fixbench.solvers.registry import get
+
+    cap = get("exact").Config().max_enumeration
+    return p.joint_size <= (cap if proof_limit is None else min(cap, proof_limit))
+
+
+def compute_reference(case: str, material: str | None, agents: int | None, tasks: int | None,
+                      modes: tuple[str, ...], proof_limit: int | None = None) -> dict:
+    """The regret reference of a problem in one job (the proof phase enumerates a problem position by
+    position instead where it can: :func:`prove_position`, :mod:`fixbench.bench.running.proof`): the ``exact``
+    planner's optimum (its MILP: proven, or best known with its gap); where ``exact`` refuses (too
+    large), or the problem has more than ``proof_limit`` layouts a position (the matrix's cap), the
+    shipped catalog reference of the case (:mod:`fixbench.cases.references`: the portfolio's best-known
+    layouts), restricted to the problem's tasks. ``source`` says which was used; ``case_fingerprint``
+    which case file, material and agent count it was computed on (merged reports compare it:
+    :mod:`fixbench.bench.reporting.merge`)."""
+    from fixbench.solvers.base import PlannerError
+    from fixbench.solvers.registry import get
+
+    p = problem_for(case, material, agents, tasks)
+    ref = reference_head(case, material, agents, tasks, p)
+    t0 = time.perf_counter()
+    try:
+        exact = get("exact")()
+        try:
+            if proof_limit is not None and p.joint_size > proof_limit:
+                raise PlannerError(f"{p.joint_size:.3g} layouts a position, over the matrix's proof_limit "
+                                   f"({proof_limit:.3g})")
+            res = exact.solve(p, None, seed=0, mode="per-task")
+        except PlannerError as refused:
+            shipped = shipped_reference(case, p.spec.material.name, p.n_agents, tasks)
+            if shipped is None:
+                raise PlannerError(f"{refused}; and no shipped reference for {p.name}/{p.spec.material.name}/"
+                                   f"{p.n_agents} agents (fixbench references build)") from None
+            ref.update(shipped)
+        else:
+            ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(),
+                       proven=bool(res.info.get("proven", False)), gap=res.info.get("gap"),
+                       method=res.info.get("method"), samples=res.samples, source="exact")
+            if "shared" in modes:
+                shared = exact.solve(p, None, seed=0, mode="shared")
+                ref["shared"] = shared.objective
+                ref["proven"] = ref["proven"] and bool(shared.info.get("proven", False))
+    except Exception as exc:  # a failing reference is recorded, never a crash of the matrix
+        ref["error"] = f"{type(exc).__name__}: {exc}"
+    ref["wall_s"] = time.perf_counter() - t0
+    return ref
+
+
+@dataclass(frozen=True)
+class Position:
+    """One position (task) of a problem whose optimum the proof phase proves by enumeration; ``task``
+    None: the shared optimum (one layout for every position, judged by the worst)."""
+
+    case: str
+    material: str | None
+    agents: int | None
+    tasks: int | None
+    task: int | None
+
+    @property
+    def problem_key(self) -> tuple:
+        return (self.case, self.material, self.agents, self.tasks)
+
+
+def prove_position(pos: Position) -> dict:
+    """The proven optimum of one position: ``exact``'s enumeration on a counted evaluator open on that
+    position alone (the layout of least max deformation, first in enumeration order on a tie), measured
+    as :meth:`~fixbench.solvers.base.Planner.solve` scores it; with ``task`` None the shared optimum.
+    Returns the proof record (:mod:`fixbench.bench.running.proof`), or ``{"position", "error"}``; never raises.
+    ``exact``'s own progress bar is kept off the terminal: the driver shows the phase's."""
+    from fixbench.solvers.base import TracedEvaluator
+    from fixbench.solvers.registry import get
+
+    t0 = time.perf_counter()
+    try:
+        p = problem_for(*pos.problem_key)
+        exact = get("exact")()
+        with _quiet_stderr():
+            if pos.task is None:
+                res = exact.solve(p, None, seed=0, mode="shared")
+                return {"position": "shared", "objective_m": float(res.objective),
+                        "layout": res.layouts[0].tolist(), "proven": bool(res.info.get("proven", False)),
+                        "samples": int(res.samples), "wall_s": time.perf_counter() - t0}
+            ev = TracedEvaluator(p, None, [pos.task])
+            exact.plan(p, ev, np.random.default_rng(0), "per-task")
+        layout = ev.best_layout[pos.task]
+        u = p.deformation(p.measure(pos.task, layout[None])).max_u[0]
+    except Exception as exc:  # a failing position is recorded by the driver, never a crash of the matrix
+        return {"position": "shared" if pos.task is None else pos.task, "error": f"{type(exc).__name__}: {exc}"}
+    return {"position": pos.task, "layout": layout.tolist(), "max_deformation_m": float(u),
+            "samples": int(ev.samples), "wall_s": time.perf_counter() - t0}
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Run with ``sys.stderr`` captured (a progress bar that asks for a terminal stays off), then pass
+    on whatever was written there (a warning)."""
+    buffer = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(buffer):
+            yield
+    finally:
+        sys.stderr.write(buffer.getvalue())
+
+
+def shipped_reference(case: str, material: str, agents: int, tasks: int | None) -> dict | None:
+    """The shipped reference of a catalog case for ``tasks`` of its tasks (all: None), or None."""
+    from fixbench.cases.references import source_text
+    from fixbench.cases.spec import case_names
+
+    if case not in case_names():
+        return None
+    full = load_reference(case, material, agents)
+    if full is None:
+        return None
+    ids = task_subset(full["n_tasks"], tasks)
+    recs = [full["tasks"][i] for i in ids]
+    return {"per_task": [r["max_deformation_m"] for r in recs], "layouts": [r["layout"] for r in recs],
+            "proven": all(r["status"] == "proven" for r in recs), "gap": None, "method": "portfolio",
+            "source": source_text(full)}
+
+
+# the reference portfolio --------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class Portfolio:
@@ -94,9 +248,10 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
           echo=print, problem: Problem | None = None) -> dict:
     """Run the portfolio on a catalog case; returns the reference record (not yet written)."""
     from fixbench.solvers.base import random_layouts
+    from fixbench.solvers.encoding import task_features
     from fixbench.solvers.local import LocalConfig, local_search
     from fixbench.solvers.registry import get
-    from fixbench.solvers.transfer import nearest_tasks, scaled_features
+    from fixbench.solvers.transfer import nearest_tasks
 
     effort = effort or Portfolio()
     p = problem or load_problem(case, material=material, agents=agents)
@@ -140,7 +295,7 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
     cfg = LocalConfig(soft_power=effort.soft_power)
     rng = np.random.default_rng(effort.seeds[0])
     power = effort.soft_power or None
-    feats = scaled_features(p)
+    feats = task_features(p, "spread")
     neighbours = [nearest_tasks(p, np.delete(np.arange(T), k), k, effort.exchange, feats) for k in range(T)]
     layout[~np.isfinite(best)] = random_layouts(p, rng, int((~np.isfinite(best)).sum()))
     for rnd in range(effort.max_rounds):
@@ -219,10 +374,8 @@ def update(run_dir, echo=print, folder=None) -> dict:
     deformation is below the reference's is re-measured on the oracle (uncounted) and replaces the
     reference only if the measurement confirms it. Returns {reference file: tasks replaced}.
     """
-    import json
     from pathlib import Path
 
-    from fixbench.bench.running.matrix import task_subset
     from fixbench.bench.running.store import load_results
     from fixbench.cases.references import reference_path
     from fixbench.cases.spec import case_names
@@ -239,9 +392,9 @@ def update(run_dir, echo=print, folder=None) -> dict:
             continue
         claims: dict[int, list] = {}  # task -> [(claimed u, layout, row)]
         for _, row in group.iterrows():
-            if not isinstance(row["layouts"], str):  # a row rescored from its trace: no layouts to offer
+            if not isinstance(row["layouts"], list):  # a row rescored from its trace: no layouts to offer
                 continue
-            u, layouts = json.loads(row["per_task_m"]), json.loads(row["layouts"])
+            u, layouts = row["per_task_m"], row["layouts"]
             ids = task_subset(ref["n_tasks"], len(u))
             for k, t in enumerate(ids):
                 if u[k] < ref["tasks"][t]["max_deformation_m"] * (1 - 1e-9):
@@ -277,15 +430,13 @@ class _Scored:
     """What :func:`fixbench.bench.running.cells.metrics` reads of a result, rebuilt from a stored row and trace."""
 
     def __init__(self, row: dict, trace: np.ndarray):
-        import json
-
-        self.max_deformation = np.asarray(json.loads(row["per_task_m"]), dtype=float)
+        self.max_deformation = np.asarray(row["per_task_m"], dtype=float)
         self.mode = "per-task" if row["mode"] == "held-out" else row["mode"]
         n, k = len(self.max_deformation), row.get("heldout_every")
         self.layouts = np.empty((n, int(row["agents"])))  # metrics reads only its shape (tasks, agents)
         self.held_out = None
         if row["mode"] == "held-out" and k:
-            self.held_out = np.setdiff1d(np.arange(n), np.arange(0, n, int(k)))
+            self.held_out = np.asarray(split(n, int(k))[1], dtype=np.int64)
         self.scored_tasks = np.arange(n) if self.held_out is None else self.held_out
         u = self.max_deformation[self.scored_tasks]
         self.objective = float(u.max() if self.mode == "shared" else u.mean())
@@ -307,7 +458,6 @@ def rescore(run_dir, echo=print) -> int:
 
     import pandas as pd
 
-    from fixbench.bench.running.cells import metrics, shipped_reference
     from fixbench.bench.running.store import Store, write_json_atomic
 
     store = Store(run_dir)
@@ -323,58 +473,25 @@ def rescore(run_dir, echo=print) -> int:
         if new["per_task"] != ref["per_task"]:
             ref.update(new)
             write_json_atomic(path, ref)
-        fresh[_key_of(ref)] = ref
+        fresh[reference_of(ref)] = ref
     n = 0
     for cid, row in rows.items():
         if row.get("error") or not row.get("per_task_m"):
             continue
         tp = Path(run_dir) / "traces" / f"{cid}.parquet"
         trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
-        ruled = apply_scoring_rule(row, trace)
-        ref = fresh.get(_key_of(row))
+        ref = fresh.get(reference_of(row))
         m = metrics(_Scored(row, trace), ref) if ref is not None else {}
-        if ref is not None and ruled:
-            row.update(policy_relative_regret=row["policy_objective_m"] / m["reference_objective_m"] - 1)
-        if ruled or any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in m
-                        if k in REFERENCE_COLUMNS):
+        if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in m
+               if k in REFERENCE_COLUMNS):
             row.update({k: m[k] for k in REFERENCE_COLUMNS if k in m})
+            policy = row.get("policy_objective_m")
+            if isinstance(policy, (int, float)) and math.isfinite(policy):  # a learner's policy, scored beside it
+                row.update(policy_relative_regret=policy / m["reference_objective_m"] - 1)
             store.rewrite(row)
             n += 1
     echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
     return n
-
-
-def apply_scoring_rule(row: dict, trace: np.ndarray) -> bool:
-    """Bring a per-task row made before the scoring rule (docs/protocol.md#scoring; such a row has no
-    ``policy_objective_m``) under it: where its trace's best on a task (the incumbent's value) is below
-    the value the row was scored by (a learner scored by its policy), the policy's values and layouts
-    move to the ``policy_*`` columns and the row is scored by the incumbents' values. Their layouts
-    were not recorded: ``layouts`` becomes null, and the rewards of the incumbents unknown (NaN).
-    Returns whether the row changed (rows of the other planners, already scored by their incumbents,
-    only gain an empty policy figure)."""
-    import json
-
-    if "policy_objective_m" in row or row.get("mode") != "per-task":
-        return False
-    u = np.asarray(json.loads(row["per_task_m"]), dtype=float)
-    best = u.copy()
-    for t in np.unique(trace[:, 0]).astype(int) if len(trace) else ():
-        if 0 <= t < len(u):
-            best[t] = trace[trace[:, 0] == t, 3].min()
-    if not (best < u * (1 - 1e-12)).any():
-        row.update(policy_objective_m=math.nan, policy_relative_regret=math.nan)
-        return True
-    row.update(policy_objective_m=float(u.mean()), policy_per_task_m=row["per_task_m"],
-               policy_layouts=row["layouts"], layouts=None, per_task_m=json.dumps(best.tolist()),
-               mean_max_deformation_m=float(best.mean()), worst_max_deformation_m=float(best.max()),
-               best_max_deformation_m=float(best.min()), objective_m=float(best.mean()),
-               mean_reward=math.nan, mean_reward_bell=math.nan, reference_regret=math.nan)
-    return True
-
-
-def _key_of(rec: dict) -> tuple:
-    """(case, material, agents, n_tasks) of a row or a reference snapshot: what pairs them."""
-    return (rec["case"], rec["material"], int(rec["agents"]), int(rec["n_tasks"]))
 
 
 def check_small(cases: tuple[str, ...] | None = None,

@@ -20,9 +20,11 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from fixbench.bench.running.cells import base_row, enumerates, problem_for, reference_key
+from fixbench.bench.running.cells import base_row, problem_for
+from fixbench.bench.running.keys import reference_key
 from fixbench.bench.running.matrix import find_matrix, load_matrix
 from fixbench.bench.running.proof import Proof
+from fixbench.bench.running.references import enumerates
 from fixbench.bench.running.store import Store, write_json_atomic
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError

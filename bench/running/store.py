@@ -12,11 +12,18 @@ Layout of a run directory::
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
 
+Schema: a row is written as ``SCHEMA_VERSION`` 2, its ``JSON_COLUMNS`` (config, per-task values,
+layouts, info, provenance) as plain JSON values. Rows of schema 1 held those columns as JSON text
+inside the JSON; they are read as they are on disk (their checksum is over that text) and then
+decoded by :func:`decode_row`, so every reader sees one in-memory form whichever schema a file has;
+:meth:`Store.rewrite` writes such a row again as schema 2.
+
 Integrity: a row carries its schema version, its cell id (equal to its file name), ``row_sha1``, a
 SHA-1 of its own content, and ``trace_sha1`` / ``curves_sha1``, the SHA-1 of the bytes of its trace
 and curves files (written before the row). A row file that does not parse, is not a row, belongs
-to another cell, has another schema version or fails its checksum, or whose trace or curves file is
-missing or differs from its recorded SHA-1, is *damaged*: :meth:`Store.finished` reports it in one
+to another cell, has a schema version this fixbench does not read, fails its checksum or holds a
+column in the wrong form for its schema, or whose trace or curves file is missing or differs from
+its recorded SHA-1, is *damaged*: :meth:`Store.finished` reports it in one
 line and (in a run) moves it and its files to ``DIR/damaged/`` (never deletes them), so its cell is
 recomputed; ``fixbench report`` skips and counts it, and reads only the traces and curves of valid
 rows. Rows written before checksums existed are checked by schema only.
@@ -41,14 +48,16 @@ from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_atomic, write_text_atomic
 from fixbench.solvers.base import TRACE_COLUMNS
 
-#: the version every row is written with (``schema``) and every row read is checked against
-SCHEMA_VERSION = 1
+#: the version every row is written with (``schema``)
+SCHEMA_VERSION = 2
+#: the versions a row read may have (see the module docstring; a row without ``schema`` is of version 1)
+READ_VERSIONS = (1, 2)
 
 #: column -> meaning (README "Results" documents the same table)
 ROW_SCHEMA = {
     "schema": "schema version of this row",
     "cell": "cell id (hash of the cell's settings)",
-    "planner": "planner name", "config": "planner config overrides (JSON)",
+    "planner": "planner name", "config": "planner config overrides (JSON object)",
     "config_hash": "hash of the planner's full config",
     "case": "case name", "part": "physical part", "material": "material name",
     "label": "the matrix entry's label (empty: planner name and config)",
@@ -62,7 +71,7 @@ ROW_SCHEMA = {
     "worst_max_deformation_m": "worst task's max |u|",
     "best_max_deformation_m": "best task's max |u|",
     "objective_m": "mean (per-task; over held-out tasks in held-out mode) or worst (shared) max |u|",
-    "per_task_m": "max |u| of the layout each task is scored by (JSON list, metres; the scoring rule: "
+    "per_task_m": "max |u| of the layout each task is scored by (JSON array, metres; the scoring rule: "
                   "docs/protocol.md#scoring)",
     "mean_reward": "mean Gaussian reward of the layouts (seed paper)",
     "mean_reward_bell": "mean bell reward (reference code)",
@@ -79,15 +88,16 @@ ROW_SCHEMA = {
     "samples": "samples the planner spent",
     "setup_s": "problem set-up before the planner ran: model, factorisation, compliance data (no samples)",
     "wall_s": "wall time of the planner's run (set-up excluded)", "cpu_s": "CPU time of the planner's run",
-    "layouts": "the layout each task is scored by (JSON; action indices: the candidates, with one pad a robot): "
+    "layouts": "the layout each task is scored by (JSON array of arrays of action indices: the candidates, "
+               "with one pad a robot): "
                "the planner's incumbent, the best layout it evaluated there, else the layout it returned; "
                "null in a row made before incumbents were recorded and rescored from its trace",
     "policy_objective_m": "a learner's second figure: the objective of its greedy policy's layouts (NaN: none)",
     "policy_relative_regret": "policy_objective_m / reference_objective_m - 1",
-    "policy_per_task_m": "max |u| of the policy's layout on each task (JSON list, metres)",
-    "policy_layouts": "the policy's layout per task (JSON)",
-    "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON)",
-    "provenance": "where and with what the row was made (JSON): fixbench version and source commit, Python, "
+    "policy_per_task_m": "max |u| of the policy's layout on each task (JSON array, metres)",
+    "policy_layouts": "the policy's layout per task (JSON array of arrays)",
+    "version": "fixbench version", "error": "empty, or why the cell failed", "info": "planner info (JSON object)",
+    "provenance": "where and with what the row was made (JSON object): fixbench version and source commit, Python, "
                   "library versions, numpy's BLAS, CPU model and cores, threads, environment switches "
                   "(bench/running/provenance.py)",
 }
@@ -98,6 +108,8 @@ ROW_SCHEMA = {
 REQUIRED = {"cell": str, "planner": str, "case": str}
 OPTIONAL = {"schema": int, "mode": str, "error": str}
 CHECKSUM = "row_sha1"
+#: the columns holding a JSON value (not a flat number or text): schema 1 wrote each as JSON text
+JSON_COLUMNS = ("config", "per_task_m", "layouts", "info", "provenance", "policy_per_task_m", "policy_layouts")
 #: the row key holding the SHA-1 of each per-cell file, by folder
 FILE_CHECKSUMS = {"traces": "trace_sha1", "curves": "curves_sha1"}
 
@@ -108,6 +120,12 @@ def write_json_atomic(path: Path, data) -> None:
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
     write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False), ".parquet.tmp")
+
+
+def json_text(value) -> str:
+    """The canonical JSON text of a column's value (keys sorted): what a table groups records on and
+    a CSV writes."""
+    return json.dumps(value, sort_keys=True, default=str)
 
 
 def row_checksum(row: dict) -> str:
@@ -133,12 +151,16 @@ def check_row(row, cell_id: str) -> str:
             continue
         if isinstance(v, bool) or not isinstance(v, kind):
             return f"key '{key}' is not a {kind.__name__}"
-    if isinstance(row.get("schema"), int) and row["schema"] != SCHEMA_VERSION:
-        return f"schema {row['schema']}, this fixbench reads {SCHEMA_VERSION}"
+    if isinstance(row.get("schema"), int) and row["schema"] not in READ_VERSIONS:
+        return f"schema {row['schema']}, this fixbench reads {', '.join(map(str, READ_VERSIONS))}"
     if row["cell"] != cell_id:
         return f"holds cell {row['cell']!r}, not {cell_id!r}"
     if CHECKSUM in row and row[CHECKSUM] != row_checksum(row):
         return "checksum does not match its content"
+    if row.get("schema") == SCHEMA_VERSION:
+        text = [k for k in JSON_COLUMNS if isinstance(row.get(k), str)]
+        if text:
+            return f"key '{text[0]}' is JSON text, not a JSON value (schema {SCHEMA_VERSION})"
     for key in ("objective_m", "mean_max_deformation_m", "samples"):
         v = row.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
@@ -147,6 +169,23 @@ def check_row(row, cell_id: str) -> str:
     if isinstance(v, (int, float)) and v < 0:
         return f"objective_m is {v} (a deformation cannot be negative)"
     return ""
+
+
+def decode_row(row: dict) -> dict:
+    """A valid row (checked by :func:`check_row`, its checksum over the file as it is) in its in-memory
+    form: a schema-1 row's ``JSON_COLUMNS`` held as JSON text are decoded to their values (arrays,
+    objects); a schema-2 row is returned as it is. The only place rows of the two schemas meet.
+    Raises ValueError naming a column whose text is not JSON."""
+    if row.get("schema") == SCHEMA_VERSION:
+        return row
+    out = dict(row)
+    for key in JSON_COLUMNS:
+        if isinstance(out.get(key), str):
+            try:
+                out[key] = json.loads(out[key])
+            except ValueError:
+                raise ValueError(f"key '{key}' is not JSON text (schema 1)") from None
+    return out
 
 
 def warn(msg: str) -> None:
@@ -180,18 +219,29 @@ class Store:
                 return f"its {folder} file {path.name} differs from the row's {FILE_CHECKSUMS[folder]}"
         return ""
 
+    def read_row(self, path: Path) -> tuple[dict | None, str]:
+        """The row in ``path`` (decoded: :func:`decode_row`) and '', or None and why it is damaged."""
+        try:
+            row = json.loads(path.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            return None, f"not JSON ({str(exc).splitlines()[0]})"
+        why = check_row(row, path.stem) or self.check_files(row)
+        if why:
+            return None, why
+        try:
+            return decode_row(row), ""
+        except ValueError as exc:
+            return None, str(exc)
+
     def finished(self, move_damaged: bool = False, quiet: bool = False) -> dict[str, dict]:
-        """Valid rows already written, by cell id. Each damaged row file (see module docstring) is
+        """Valid rows already written (decoded: :func:`decode_row`), by cell id. Each damaged row file
+        (see module docstring) is
         reported in one line (unless ``quiet``) and, with ``move_damaged``, moved to
         ``DIR/damaged/`` with its trace and curves files (its cell is then to do again);
         ``self.damaged`` lists their paths."""
         out, self.damaged = {}, []
         for p in sorted((self.root / "rows").glob("*.json")):
-            try:
-                row = json.loads(p.read_text(encoding="utf-8"))
-                why = check_row(row, p.stem) or self.check_files(row)
-            except (ValueError, UnicodeDecodeError) as exc:
-                why = f"not JSON ({str(exc).splitlines()[0]})"
+            row, why = self.read_row(p)
             if not why:
                 out[p.stem] = row
                 continue
@@ -242,13 +292,18 @@ class Store:
                 row[FILE_CHECKSUMS[folder]] = file_sha1(paths[folder])
             elif paths[folder].is_file():  # a stale file of an earlier attempt: not this row's
                 paths[folder].unlink()
-        row[CHECKSUM] = row_checksum(row)
-        write_json_atomic(self.row_path(row["cell"]), row)
+        self._put(row)
 
     def rewrite(self, row: dict) -> None:
-        """Write a finished row again after changing columns of its own (its trace and curves files
-        untouched), with its checksum recomputed: a row rewritten without it would read as damaged."""
-        row = {k: v for k, v in row.items() if k != CHECKSUM}
+        """Write a finished row (as :meth:`finished` gives it) again after changing columns of its own
+        (its trace and curves files untouched), as schema ``SCHEMA_VERSION`` with its checksum
+        recomputed: a row rewritten without it would read as damaged."""
+        self._put({k: v for k, v in row.items() if k != CHECKSUM})
+
+    def _put(self, row: dict) -> None:
+        """Write ``row`` (no checksum yet) as schema ``SCHEMA_VERSION``: its values as JSON reads them
+        back (tuples as arrays, other objects as text), then its checksum over exactly those."""
+        row = json.loads(json.dumps({**row, "schema": SCHEMA_VERSION}, default=str))
         row[CHECKSUM] = row_checksum(row)
         write_json_atomic(self.row_path(row["cell"]), row)
 
