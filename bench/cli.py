@@ -611,6 +611,29 @@ def references_rescore(run_dir) -> None:
     rescore(run_dir, echo=click.echo)
 
 
+@references.command("bound")
+@click.argument("case")
+@click.option("--material", help="Material name (default: the case's).")
+@click.option("--agents", type=int, help="Number of agents (default: the case's).")
+@click.option("--time-limit", "time_limit", type=click.FloatRange(min=0, min_open=True), default=60.0,
+              show_default=True, help="Seconds of branch-and-bound a position.")
+@click.option("--tasks", help="Comma-separated positions (default: every one).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="References folder (default: the catalog's).")
+def references_bound(case, material, agents, time_limit, tasks, out) -> None:
+    """Certified lower bounds on CASE's shipped reference, written into it (docs/references.md#lower-bounds)."""
+    from fixbench.bench.running.references import bound
+
+    try:
+        ids = None if tasks is None else [int(x) for x in tasks.split(",") if x.strip()]
+    except ValueError:
+        raise click.BadParameter(f"not a comma-separated list of positions: {tasks!r}", param_hint="--tasks") from None
+    res = bound(case, material, agents, time_limit, ids, folder=out, echo=lambda m: click.echo(m, err=True))
+    gaps = sorted(r["gap"] for r in res["positions"])
+    click.echo(f"wrote {res['path']}: {len(gaps)} positions, gap (reference - bound) / reference: median "
+               f"{100 * gaps[len(gaps) // 2]:.1f} %, worst {100 * gaps[-1]:.1f} %")
+
+
 @references.command("check")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as strict JSON.")
 def references_check(as_json) -> None:

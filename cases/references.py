@@ -15,8 +15,10 @@ File format (``FORMAT`` 1)::
      "provenance": [{"action": "build" | "update", ...methods, budgets, seeds, wall time...}],
      "content_hash": "<sha256 of the canonical JSON of tasks>"}
 
-``status`` is ``proven`` only where a proof exists (an exhaustive enumeration or a MILP bound
-that closes the gap); ``lower_bound_m`` holds a proven bound where one was affordable. The content
+``status`` is ``proven`` only where a proof exists (an exhaustive enumeration, or a bound that
+closes the gap); ``lower_bound_m`` holds a certified lower bound on the position's optimum where one
+was computed (``fixbench references bound``: :mod:`fixbench.solvers.bound`), null elsewhere; a bound
+above the layout's own value is refused like a damaged table. The content
 hash lets a reader check that the table was not edited by hand; the fingerprint says which case
 definition the layouts were measured on: a reference whose case changed is *stale* and is not used.
 """
@@ -37,6 +39,9 @@ from fixbench.cases.spec import drawing_digests, read_toml, resolve_case
 FORMAT = 1
 REFERENCE_DIR = Path(__file__).parent / "catalog" / "references"
 STATUSES = ("proven", "best-known")
+#: relative round-off a certified bound may sit above the value it bounds (the bound's own safety margin
+#: is 1e-6 below; the two are measured on the same oracle)
+BOUND_SLACK = 1e-9
 
 
 def reference_path(case: str, material: str, agents: int, folder: Path | None = None) -> Path:
@@ -70,6 +75,11 @@ def check_reference(ref: dict, source: str) -> dict:
                 or not isinstance(t.get("layout"), list) or len(t["layout"]) != ref.get("agents"):
             raise CaseError(source, f"tasks[{i}]", "needs a layout of one candidate per agent, a positive "
                             f"max_deformation_m and a status in {STATUSES}")
+        lb = t.get("lower_bound_m")
+        if lb is not None and not (isinstance(lb, (int, float)) and 0 <= lb <= u * (1 + BOUND_SLACK)):
+            raise CaseError(source, f"tasks[{i}].lower_bound_m", f"must be null or in [0, max_deformation_m = "
+                            f"{u:.6g}], got {lb!r}: a bound above a value reached is no bound (the file was "
+                            "changed by hand or damaged)")
     if ref.get("content_hash") != content_hash(tasks):
         raise CaseError(source, "content_hash", "does not match the tasks (the file was changed by hand "
                         "or damaged); rebuild it with fixbench references build")

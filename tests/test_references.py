@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import fixbench.cases.references as refs
-from fixbench.bench.running.references import Portfolio, build, compute_reference, rescore, update
+from fixbench.bench.running.references import Portfolio, bound, build, compute_reference, rescore, update
 from fixbench.bench.running.store import CHECKSUM, Store, row_checksum, write_json_atomic
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
@@ -127,6 +127,50 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent
+
+
+def test_bound_to_the_end_proves_every_position(tiny, built, folder):
+    """Branch-and-bound run to the end: every position proven at exact's optimum, a worse layout of the
+    reference replaced by the optimum the search found, the method and its settings recorded."""
+    worse = json.loads(json.dumps(built))
+    bad = [int(a[-1]) for a in tiny.action_sets]
+    u_bad = float(tiny.measure(1, np.asarray([bad]))[0, 3])
+    worse["tasks"][1].update(layout=bad, max_deformation_m=u_bad)
+    refs.write_reference(worse)
+    opt = get("exact")().solve(tiny, None).max_deformation
+    assert u_bad > opt[1] * 1.01  # the damage is real
+    res = bound("fan_small", None, 2, time_limit_s=600.0, echo=lambda m: None)
+    new = refs.load_reference("fan_small", built["material"], 2)
+    assert [t["status"] for t in new["tasks"]] == ["proven"] * tiny.n_tasks
+    assert [t["max_deformation_m"] for t in new["tasks"]] == pytest.approx(opt.tolist(), rel=1e-9)
+    assert [t["lower_bound_m"] for t in new["tasks"]] == [t["max_deformation_m"] for t in new["tasks"]]
+    assert [r["gap"] for r in res["positions"]] == [0.0] * tiny.n_tasks
+    prov = new["provenance"][-1]
+    assert prov["action"] == "bound" and prov["settings"]["time_limit_s"] == 600.0 and prov["proven"] == 6
+
+
+def test_a_bound_stopped_early_stays_below_and_is_kept_per_position(built, folder):
+    refs.write_reference(built)
+    bound("fan_small", None, 2, time_limit_s=1e-9, tasks=[2], echo=lambda m: None)
+    new = refs.load_reference("fan_small", built["material"], 2)
+    rec = new["tasks"][2]
+    assert 0 <= rec["lower_bound_m"] <= rec["max_deformation_m"]  # the root's bound: certified, not closed
+    assert [t["lower_bound_m"] for i, t in enumerate(new["tasks"]) if i != 2] == [None] * 5
+
+
+def test_a_bound_above_the_reference_is_refused(built, folder, capsys):
+    from fixbench.bench.cli import main
+
+    path = refs.write_reference(built)
+    damaged = json.loads(path.read_text())
+    damaged["tasks"][3]["lower_bound_m"] = 2 * damaged["tasks"][3]["max_deformation_m"]
+    damaged["content_hash"] = refs.content_hash(damaged["tasks"])  # consistent, but not a bound
+    path.write_text(json.dumps(damaged))
+    with pytest.raises(CaseError, match=r"tasks\[3\].lower_bound_m.*no bound"):
+        refs.load_reference("fan_small", built["material"], 2)
+    assert main(["references", "bound", "fan_small", "--agents", "2", "--time-limit", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "lower_bound_m" in err and "Traceback" not in err
 
 
 def test_check_small_counts_tasks_at_the_optimum():
