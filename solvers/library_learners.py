@@ -161,9 +161,9 @@ def torchrl_quiet():
 class TorchRLLearner(Planner):
     """What the learners built from TorchRL's components share (``mappo``, ``ippo``, ``qmix``): the run's
     set-up (split, episodes, seeding inside ``torch.random.fork_rng``, torch threads), the env, the policy's
-    greedy layouts, the ``info`` and the ``training`` curves; a subclass has a ``Config`` and ``_train``,
-    which returns the layouts, the :class:`StepRecord`, the :class:`Timings`, its ``own`` info keys and
-    ``batch_loss``, its loss a rollout (None: no update), declared as the curve ``batch_loss``."""
+    greedy layouts, the rollout loop, the ``info`` and the ``training`` curves (``batch_loss``: the mean loss
+    of each rollout's updates, None where there was none); a subclass has a ``Config`` and ``_learner``,
+    its exploring and greedy policies and its update of a rollout."""
 
     family = "marl"
     modes = ("per-task",)
@@ -188,6 +188,37 @@ class TorchRLLearner(Planner):
         training = learner_training(record, per_episode(record.arrays()[0], episodes)).add(
             "batch", batch_loss=run["batch_loss"])
         return run["layouts"], info, training
+
+    def _train(self, problem: Problem, ev: TracedEvaluator, ids: np.ndarray, episodes: int, seed: int) -> dict:
+        """Rollouts of ``batch_episodes`` episodes (the last may be shorter) with the exploring policy,
+        the subclass's update after each (:meth:`_learner`), then the greedy policy on every task."""
+        from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+        cfg = self.config
+        t0 = time.perf_counter()
+        problem.oracle.prepare()
+        tm = Timings(setup=time.perf_counter() - t0)
+        env, norm = self._env(problem, ev, ids, seed)
+        explore, greedy, learn = self._learner(env, problem, episodes * len(ids))
+        scale, record = LogScale(cfg.scale_samples), StepRecord()
+        batch_loss, updates, left = [], 0, episodes
+        while left:
+            k = min(cfg.batch_episodes, left)
+            t1 = time.perf_counter()
+            with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # PPO samples, QMIX explores
+                td = env.rollout(k * len(ids), explore, break_when_any_done=False)
+            t2 = time.perf_counter()
+            losses = learn(td, scale, record)
+            batch_loss.append(float(np.mean(losses)) if losses else None)  # None: no update
+            updates += len(losses)
+            left -= k
+            tm.oracle += t2 - t1  # the rollout: the oracle's samples and the policy's draws
+            tm.update += time.perf_counter() - t2
+        t3 = time.perf_counter()
+        layouts = policy_layouts(problem, self._mode(greedy, norm, problem))
+        tm.greedy = time.perf_counter() - t3
+        return {"layouts": layouts, "record": record, "own": {"updates": updates}, "times": tm,
+                "batch_loss": batch_loss}
 
     def _env(self, problem: Problem, ev: TracedEvaluator, ids: np.ndarray, seed: int):
         """TorchRL's wrapper around the padded env on the run's evaluator, the observation (the env's raw
@@ -242,16 +273,12 @@ class PPOPlanner(TorchRLLearner):
         critic = TensorDictModule(value, in_keys=[OBS], out_keys=[(GROUP, "state_value")])
         return actor, critic
 
-    def _train(self, problem: Problem, ev: TracedEvaluator, ids: np.ndarray, episodes: int, seed: int) -> dict:
-        """Rollouts and PPO updates, then the policy's mode on every task."""
-        from torchrl.envs.utils import ExplorationType, set_exploration_type
+    def _learner(self, env, problem: Problem, steps_total: int):
+        """PPO's actor (exploring by sampling, greedy by its mode) and its update of a rollout: ``epochs``
+        passes of ``minibatches`` clipped-PPO steps over the rollout's batch."""
         from torchrl.objectives import ClipPPOLoss
 
         cfg = self.config
-        t0 = time.perf_counter()
-        problem.oracle.prepare()
-        tm = Timings(setup=time.perf_counter() - t0)
-        env, norm = self._env(problem, ev, ids, seed)
         n_actions = max(len(s) for s in problem.action_sets)
         actor, critic = self._modules(problem.features.shape[1], n_actions, problem.n_agents)
         loss = ClipPPOLoss(actor, critic, clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff,
@@ -261,14 +288,8 @@ class PPOPlanner(TorchRLLearner):
                       value_target=(GROUP, "value_target"), reward=(GROUP, "reward"),
                       done=(GROUP, "done"), terminated=(GROUP, "terminated"))
         opt = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
-        scale, record = LogScale(cfg.scale_samples), StepRecord()
-        batch_loss, updates, left = [], 0, episodes
-        while left:
-            k = min(cfg.batch_episodes, left)
-            t1 = time.perf_counter()
-            with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # sample, not the mode
-                td = env.rollout(k * len(ids), actor, break_when_any_done=False)
-            t2 = time.perf_counter()
+
+        def learn(td, scale: LogScale, record: StepRecord) -> list[float]:
             batch = self._batch(td, scale, record, critic)
             losses = []
             for _ in range(cfg.epochs):
@@ -280,17 +301,9 @@ class PPOPlanner(TorchRLLearner):
                     torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
                     opt.step()
                     losses.append(total.item())
-                    updates += 1
-            batch_loss.append(float(np.mean(losses)))
-            left -= k
-            tm.oracle += t2 - t1  # the rollout: the oracle's samples and the policy's draws
-            tm.update += time.perf_counter() - t2
-        t3 = time.perf_counter()
-        layouts = policy_layouts(problem, self._mode(actor, norm, problem))
-        tm.greedy = time.perf_counter() - t3
-        own = {"updates": updates}
-        return {"layouts": layouts, "record": record, "own": own, "times": tm,
-                "batch_loss": batch_loss}  # PPO's loss, mean per rollout
+            return losses
+
+        return actor, actor, learn
 
     @staticmethod
     def _batch(td, scale: LogScale, record: StepRecord, critic):
@@ -443,29 +456,18 @@ class QMIX(TorchRLLearner):
                       action=(GROUP, "action"))
         return greedy, explore, loss
 
-    def _train(self, problem: Problem, ev: TracedEvaluator, ids: np.ndarray, episodes: int, seed: int) -> dict:
-        """Epsilon-greedy rollouts into the replay, QMIX updates from it, then the greedy policy."""
+    def _learner(self, env, problem: Problem, steps_total: int):
+        """QMIX's exploring and greedy policies and its update of a rollout: the rollout's steps into the
+        replay, then ``updates_per_step`` QMixerLoss steps per step collected once the replay holds a batch."""
         from torchrl.data import LazyTensorStorage, ReplayBuffer
-        from torchrl.envs.utils import ExplorationType, set_exploration_type
 
         cfg = self.config
-        t0 = time.perf_counter()
-        problem.oracle.prepare()
-        tm = Timings(setup=time.perf_counter() - t0)
-        env, norm = self._env(problem, ev, ids, seed)
-        steps_total = episodes * len(ids)
         greedy, explore, loss = self._modules(env, problem.features.shape[1], problem.n_agents, steps_total)
         opt = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
         replay = ReplayBuffer(storage=LazyTensorStorage(min(cfg.capacity, steps_total)), batch_size=cfg.batch)
-        scale, record = LogScale(cfg.scale_samples), StepRecord()
-        batch_loss, updates, left = [], 0, episodes
-        while left:
-            k = min(cfg.batch_episodes, left)
-            t1 = time.perf_counter()
-            with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # epsilon-greedy
-                td = env.rollout(k * len(ids), explore, break_when_any_done=False)
-            explore[-1].step(len(td))
-            t2 = time.perf_counter()
+
+        def learn(td, scale: LogScale, record: StepRecord) -> list[float]:
+            explore[-1].step(len(td))  # epsilon's annealing, by the steps collected
             replay.extend(self._transitions(td, scale, record))
             losses = []
             for _ in range(cfg.updates_per_step * len(td) if len(replay) >= cfg.batch else 0):
@@ -477,17 +479,9 @@ class QMIX(TorchRLLearner):
                 torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
                 opt.step()
                 losses.append(value.item())
-                updates += 1
-            batch_loss.append(float(np.mean(losses)) if losses else None)
-            left -= k
-            tm.oracle += t2 - t1  # the rollout: the oracle's samples and the policy's choices
-            tm.update += time.perf_counter() - t2
-        t3 = time.perf_counter()
-        layouts = policy_layouts(problem, self._mode(greedy, norm, problem))
-        tm.greedy = time.perf_counter() - t3
-        own = {"updates": updates}
-        return {"layouts": layouts, "record": record, "own": own, "times": tm,
-                "batch_loss": batch_loss}  # QMixerLoss (l2), mean per rollout; None: no update
+            return losses
+
+        return explore, greedy, learn
 
     @staticmethod
     def _transitions(td, scale: LogScale, record: StepRecord):
