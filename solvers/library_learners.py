@@ -158,6 +158,16 @@ def torchrl_quiet():
         log.setLevel(level)
 
 
+def gradient_step(opt, loss_module, value, max_grad_norm: float) -> float:
+    """One optimiser step on ``value`` (a scalar loss of ``loss_module``'s parameters), its gradient
+    clipped to ``max_grad_norm``; returns the loss."""
+    opt.zero_grad()
+    value.backward()
+    torch.nn.utils.clip_grad_norm_(loss_module.parameters(), max_grad_norm)
+    opt.step()
+    return value.item()
+
+
 class TorchRLLearner(Planner):
     """What the learners built from TorchRL's components share (``mappo``, ``ippo``, ``qmix``): the run's
     set-up (split, episodes, seeding inside ``torch.random.fork_rng``, torch threads), the env, the policy's
@@ -296,11 +306,7 @@ class PPOPlanner(TorchRLLearner):
                 for mb in torch.randperm(len(batch)).chunk(min(cfg.minibatches, len(batch))):
                     parts = loss(batch[mb])
                     total = parts["loss_objective"] + parts["loss_critic"] + parts["loss_entropy"]
-                    opt.zero_grad()
-                    total.backward()
-                    torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-                    opt.step()
-                    losses.append(total.item())
+                    losses.append(gradient_step(opt, loss, total, cfg.max_grad_norm))
             return losses
 
         return actor, actor, learn
@@ -473,12 +479,7 @@ class QMIX(TorchRLLearner):
             for _ in range(cfg.updates_per_step * len(td) if len(replay) >= cfg.batch else 0):
                 batch = replay.sample()
                 batch["next", "reward"] = scale.reward(batch["log_u"])[:, None]
-                value = loss(batch)["loss"]
-                opt.zero_grad()
-                value.backward()
-                torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-                opt.step()
-                losses.append(value.item())
+                losses.append(gradient_step(opt, loss, loss(batch)["loss"], cfg.max_grad_norm))
             return losses
 
         return explore, greedy, learn
