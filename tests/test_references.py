@@ -89,6 +89,7 @@ def test_harness_uses_the_shipped_reference_where_exact_refuses(built, folder, m
     assert ref["error"] == ""
     assert ref["source"].startswith("catalog reference fan_small__")
     assert ref["per_task"] == [t["max_deformation_m"] for t in built["tasks"]]
+    assert ref["lower_bounds"] == [t["lower_bound_m"] for t in built["tasks"]] == [None] * 6  # none computed
     assert ref["proven"] is False  # best-known until proven
     monkeypatch.setattr(refs, "REFERENCE_DIR", folder / "empty")
     ref = compute_reference("fan_small", None, 2, None, ("per-task",))

@@ -508,3 +508,18 @@ def test_iqm_table_pools_positions_and_leaves_out_the_tails():
     held = (np.array([ratios[s][t] for s in (0, 1) for t in (1, 2, 4, 5)]) - 1) * 100  # not 0 and 3
     assert table.loc["p", "c (held-out)"] == pytest.approx(trim_mean(held, 0.25))
     assert trim_mean(pooled, 0.25) < pooled.mean()  # the 5x and 9x positions are in the tail, not the IQM
+
+
+def test_the_reference_table_gives_each_reference_its_own_gap():
+    """Positions with a certified bound and (reference - bound) / reference over them; a snapshot
+    written before bounds were recorded counts its proven optima as their own bounds."""
+    from fixbench.bench.reporting.tables import reference_table
+
+    refs = {("a", "steel", 2, 3): {"per_task": [2e-6, 3e-6, 2e-6], "lower_bounds": [1e-6, None, 2e-6]},
+            ("b", "steel", 2, 2): {"per_task": [1e-6, 4e-6], "proven": True},
+            ("c", "steel", 2, 2): {"per_task": [1e-6, 4e-6], "proven": False}}
+    t = reference_table(refs).set_index("case")
+    assert t.loc["a", "bounded"] == 2 and t.loc["a", "gap to bound, median (%)"] == pytest.approx(25.0)
+    assert t.loc["a", "worst (%)"] == pytest.approx(50.0)
+    assert t.loc["b", "bounded"] == 2 and t.loc["b", "worst (%)"] == 0.0
+    assert t.loc["c", "bounded"] == 0 and math.isnan(t.loc["c", "gap to bound, median (%)"])

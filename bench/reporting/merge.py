@@ -32,6 +32,7 @@ import pandas as pd
 
 from fixbench.bench.reporting.comparison import _with_case_defaults
 from fixbench.bench.reporting.tables import config_text
+from fixbench.bench.running.keys import reference_of
 from fixbench.bench.running.store import load_results
 from fixbench.cases.errors import CaseError
 
@@ -111,8 +112,8 @@ def load_references(run_dir: Path) -> dict[tuple, dict]:
             continue
         if ref.get("error") or ref.get("per_task") is None:
             continue
-        key = (ref.get("case"), ref.get("material"), int(ref.get("agents")), int(ref.get("n_tasks")))
-        out[key] = ref
+        if (key := reference_of(ref)) is not None:
+            out[key] = ref
     return out
 
 

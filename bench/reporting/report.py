@@ -340,7 +340,11 @@ def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.Data
         table = reference_table(refs)
         w.table("references", table, show_numbers(table, 4),
                 "Regret references: the `exact` planner's per-task optima (and shared optimum), proven or "
-                "best known.")
+                "best known (a shipped reference: the portfolio's best-known layouts). `bounded`: the "
+                "positions with a certified lower bound on their optimum (proven, or `fixbench references "
+                "bound`), and over them the reference's own gap (reference - bound) / reference, median "
+                "and worst: how much a regret against the reference may understate the true regret "
+                "(docs/references.md#lower-bounds).")
     else:
         w.skip("Reference table", "the run has no usable regret reference (reference/*.json)")
     sweep = _comparison_sections(w, rows, refs)

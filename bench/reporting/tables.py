@@ -122,10 +122,25 @@ def show_summary(df: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
     return out
 
 
+def lower_bounds(ref: dict) -> np.ndarray:
+    """A regret reference's certified lower bound on each position's optimum (m; NaN: none): its
+    ``lower_bounds`` (a shipped reference's ``lower_bound_m``, ``exact``'s proven optima), or, in a
+    snapshot written before they were recorded, its optima where it is proven."""
+    per_task = np.asarray(ref["per_task"], dtype=float)
+    if "lower_bounds" in ref:
+        return np.array([math.nan if b is None else float(b) for b in ref["lower_bounds"]])
+    return per_task.copy() if ref.get("proven") else np.full(len(per_task), math.nan)
+
+
 def reference_table(refs: dict) -> pd.DataFrame:
-    """One line a regret reference: its optima (mean, min, max; shared), proven or not, method."""
+    """One line a regret reference: its optima (mean, min, max; shared), proven or not, method, and its
+    own gap: how many positions hold a certified lower bound and (reference - bound) / reference over
+    them (median, worst), the most by which a regret against the reference can understate the true one."""
     recs = []
     for (case, mat, agents, n_tasks), ref in sorted(refs.items(), key=lambda kv: str(kv[0])):
+        bound = lower_bounds(ref)
+        has = np.isfinite(bound)
+        gap = 100 * (1 - bound[has] / np.asarray(ref["per_task"], dtype=float)[has])
         opt = np.asarray(ref["per_task"], dtype=float) * 1e6
         recs.append({"case": case, "material": mat, "agents": agents, "tasks": n_tasks,
                      "mean optimum (um)": float(opt.mean()), "min (um)": float(opt.min()),
@@ -133,7 +148,9 @@ def reference_table(refs: dict) -> pd.DataFrame:
                      "shared optimum (um)": (ref["shared"] * 1e6 if ref.get("shared") is not None
                                              else math.nan),
                      "proven": bool(ref.get("proven")), "method": ref.get("method") or "",
-                     "samples": ref.get("samples")})
+                     "samples": ref.get("samples"), "bounded": int(has.sum()),
+                     "gap to bound, median (%)": float(np.median(gap)) if has.any() else math.nan,
+                     "worst (%)": float(gap.max()) if has.any() else math.nan})
     return pd.DataFrame(recs)
 
 

@@ -111,8 +111,10 @@ def compute_reference(case: str, material: str | None, agents: int | None, tasks
                                    f"{p.n_agents} agents (fixbench references build)") from None
             ref.update(shipped)
         else:
-            ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(),
-                       proven=bool(res.info.get("proven", False)), gap=res.info.get("gap"),
+            proven = bool(res.info.get("proven", False))
+            ref.update(per_task=res.max_deformation.tolist(), layouts=res.layouts.tolist(), proven=proven,
+                       lower_bounds=res.max_deformation.tolist() if proven else [None] * p.n_tasks,
+                       gap=res.info.get("gap"),
                        method=res.info.get("method"), samples=res.samples, source="exact")
             if "shared" in modes:
                 shared = exact.solve(p, None, seed=0, mode="shared")
@@ -194,6 +196,7 @@ def shipped_reference(case: str, material: str, agents: int, tasks: int | None) 
     ids = task_subset(full["n_tasks"], tasks)
     recs = [full["tasks"][i] for i in ids]
     return {"per_task": [r["max_deformation_m"] for r in recs], "layouts": [r["layout"] for r in recs],
+            "lower_bounds": [r.get("lower_bound_m") for r in recs],
             "proven": all(r["status"] == "proven" for r in recs), "gap": None, "method": "portfolio",
             "source": source_text(full)}
 
