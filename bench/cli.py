@@ -343,10 +343,15 @@ def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed,
               show_default=True, help="Tuning cases, comma-separated (*_small only: never a reported problem).")
 @click.option("--seeds", default="0", show_default=True, help="Seeds of each trial's runs, comma-separated.")
 @click.option("--samples-per-task", type=int, default=100, show_default=True)
+@click.option("--track", type=click.Choice(["per-task", "held-out"]), default="per-task", show_default=True,
+              help="The track tuned for: per-task (every position sampled) or held-out (train on every "
+                   "--heldout-every-th position, scored on the others with no sample).")
+@click.option("--heldout-every", type=click.IntRange(min=2), default=2, show_default=True,
+              help="The held-out track's split of the tuning cases.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the tuned [[planners]] entry (a matrix fragment) to this file.")
-def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
-    """Tune PLANNER's tunable config fields with Optuna on the *_small cases (bench/tune.py)."""
+def tune(planner, trials, cases, seeds, samples_per_task, track, heldout_every, out) -> None:
+    """Tune PLANNER's tunable config fields with Optuna on the *_small cases, for one track (bench/tune.py)."""
     from fixbench.bench.tune import matrix_entry, tune, write_entry
 
     try:
@@ -354,7 +359,7 @@ def tune(planner, trials, cases, seeds, samples_per_task, out) -> None:
     except ValueError:
         raise CaseError("--seeds", "", f"'{seeds}' is not a comma-separated list of integers") from None
     result = tune(planner, trials, tuple(c.strip() for c in cases.split(",") if c.strip()), seed_list,
-                  samples_per_task, echo=lambda m: click.echo(m, err=True))
+                  samples_per_task, echo=lambda m: click.echo(m, err=True), track=track, heldout_every=heldout_every)
     if out:
         write_entry(result, out)
     click.echo(matrix_entry(result), nl=False)

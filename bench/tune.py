@@ -11,9 +11,16 @@ the thousands of per cent does not drown the others. The planner's defaults are 
 the tuned configuration is never worse than the defaults on the tuning problems. Only ``*_small``
 cases are accepted: the paper's parts (and anything a matrix reports) are never tuned on.
 
+Each track is tuned for itself (``track``): ``per-task`` as above; ``held-out`` on the held-out split of
+the same cases (:func:`fixbench.bench.running.keys.split`, every ``heldout_every``-th position: the
+planner pays ``samples_per_task`` on each training position and acts on the others with no sample), the
+objective its regret on the held-out positions alone. What wins searching each position rarely carries
+to positions never sampled, so a configuration tuned on one track is not the other's.
+
 The result is a matrix fragment (``--out FILE.toml``): one ``[[planners]]`` entry labelled
-"PLANNER (tuned)" with the fields that differ from the defaults, and, in comments, the objective of
-the defaults and of the tuned configuration and the trials spent. The norm this follows: the same
+"PLANNER (tuned)" (per-task) or "PLANNER (tuned held-out)", restricted to its track (``mode``), with the
+fields that differ from the defaults, and, in comments, the track, the objective of the defaults and of
+the tuned configuration and the trials spent. The norm this follows: the same
 tuning budget for every method, on tasks that are not reported (Papoudakis et al. NeurIPS 2021
 Datasets and Benchmarks; Gorsane et al. NeurIPS 2022).
 """
@@ -29,10 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from fixbench.bench.running.keys import split
 from fixbench.cases.errors import CaseError
 
 #: the tuning problems: the small variants of the catalog's parts (never a reported problem)
 TUNING_CASES = ("wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small")
+#: the tracks a configuration is tuned for (the matrix's modes of the same names)
+TRACKS = ("per-task", "held-out")
 KINDS = ("int", "float", "log", "choice")
 
 
@@ -62,21 +72,21 @@ def _suggest(trial, key: str, s: tuple):
 
 @functools.cache
 def _tuning_problem(case: str) -> tuple:
-    """A tuning case's problem and its mean proven optimum (``exact``: minutes of CPU, so computed once
-    a process)."""
+    """A tuning case's problem and its proven optimum of each position (``exact``: minutes of CPU, so
+    computed once a process)."""
     from fixbench.bench.running.cells import problem_for
     from fixbench.bench.running.references import compute_reference
 
     ref = compute_reference(case, None, None, None, ("per-task",))
     if ref["error"] or ref["per_task"] is None:
         raise CaseError(case, "", f"has no regret reference to tune against: {ref['error']}")
-    return problem_for(case, None, None, None), float(np.mean(ref["per_task"]))
+    return problem_for(case, None, None, None), np.asarray(ref["per_task"], dtype=float)
 
 
 def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_task: int = 100,
-         echo=print) -> dict:
-    """Tune ``planner`` with ``trials`` trials; returns {"config": tuned overrides, "default": objective of
-    the defaults, "tuned": objective of the tuned config, "trials": [...]}."""
+         echo=print, track: str = "per-task", heldout_every: int = 2) -> dict:
+    """Tune ``planner`` with ``trials`` trials for ``track``; returns {"config": tuned overrides, "default":
+    objective of the defaults, "tuned": objective of the tuned config, "trials": [...]}."""
     import optuna
 
     from fixbench.solvers.base import PlannerError
@@ -86,20 +96,31 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
     spec = space(cls)
     if trials < 1:
         raise CaseError("--trials", "", f"must be at least 1, got {trials}")
+    if track not in TRACKS:
+        raise CaseError("--track", "", f"must be one of {', '.join(TRACKS)}, got '{track}'")
+    if heldout_every < 2:
+        raise CaseError("--heldout-every", "", f"must be 2 or more, got {heldout_every}")
     for case in cases:
         if not str(case).endswith("_small"):
             raise CaseError("--cases", "", f"'{case}' is not a *_small tuning case: tuning on a problem that is "
                             "reported is not allowed")
-    problems = [(case, *_tuning_problem(case)) for case in cases]
+    problems = []
+    for case in cases:
+        p, optima = _tuning_problem(case)
+        train, held = split(p.n_tasks, heldout_every) if track == "held-out" else (None, range(p.n_tasks))
+        if not held:
+            raise CaseError(case, "", f"has {p.n_tasks} positions: none is held out at --heldout-every {heldout_every}")
+        problems.append((case, p, train, float(np.mean(optima[list(held)]))))
 
     def score(config: dict, first: bool) -> float:
         """The objective of ``config``; infinite where it cannot run at this budget (a trial TPE learns
         to avoid), an error naming the case where the defaults cannot (nothing to compare with)."""
         vals = []
-        for case, p, ref in problems:
+        for case, p, train, ref in problems:
             for seed in seeds:
                 try:
-                    res = cls(**config).solve(p, samples_per_task * p.n_tasks, seed=seed)
+                    res = cls(**config).solve(p, samples_per_task * (p.n_tasks if train is None else len(train)),
+                                              seed=seed, train_tasks=train)
                 except PlannerError as exc:
                     if first:
                         raise CaseError(case, "", f"{planner}'s defaults cannot run on this tuning case at "
@@ -127,16 +148,23 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
     best = min(records, key=lambda r: (r["objective"], r["trial"]))
     tuned = {k: v for k, v in best["config"].items() if v != defaults.get(k)}
     return {"planner": planner, "config": tuned, "default": records[0]["objective"], "tuned": best["objective"],
-            "trials": records, "cases": list(cases), "seeds": list(seeds), "samples_per_task": samples_per_task}
+            "trials": records, "cases": list(cases), "seeds": list(seeds), "samples_per_task": samples_per_task,
+            "track": track, "heldout_every": heldout_every if track == "held-out" else None}
 
 
 def matrix_entry(result: dict) -> str:
-    """The ``[[planners]]`` entry of a tuning result, with its figures as comments."""
+    """The ``[[planners]]`` entry of a tuning result, restricted to its track, with its figures as comments."""
     cfg = ", ".join(f"{k} = {_toml(v)}" for k, v in sorted(result["config"].items()))
+    track = result.get("track", "per-task")
+    held = track == "held-out"
+    where = (f"the held-out split (train on every {result['heldout_every']}th position, scored on the others)"
+             if held else "every position")
     return (f"# {result['planner']}: tuned with {len(result['trials'])} trials on {', '.join(result['cases'])} "
             f"(seeds {result['seeds']}, {result['samples_per_task']} samples a position); mean log(1 + regret): "
             f"defaults {result['default']:.4f}, tuned {result['tuned']:.4f}\n"
-            f"[[planners]]\nname = \"{result['planner']}\"\nlabel = \"{result['planner']} (tuned)\"\n"
+            f"# track {track}: tuned on {where}\n"
+            f"[[planners]]\nname = \"{result['planner']}\"\n"
+            f"label = \"{result['planner']} (tuned{' held-out' if held else ''})\"\nmode = [\"{track}\"]\n"
             + (f"config = {{ {cfg} }}\n" if cfg else ""))
 
 
@@ -172,22 +200,28 @@ def read_entry(path: Path) -> dict:
         planners = tomllib.loads(text).get("planners") or [{}]
     except tomllib.TOMLDecodeError as exc:
         raise CaseError(str(path), "", f"is not valid TOML: {exc}") from None
+    modes = planners[0].get("mode", [])
     return {"planner": m["planner"], "trials": int(m["trials"]), "default": float(m["default"]),
-            "tuned": float(m["tuned"]), "config": dict(planners[0].get("config", {}))}
+            "tuned": float(m["tuned"]), "config": dict(planners[0].get("config", {})),
+            "track": ", ".join(modes) if modes else "both (tuned per-task)"}
 
 
 def tuning_table(folder: Path) -> str:
-    """The Markdown table of every tuned entry (``*.toml``) in ``folder``, by planner: the objective of
-    the defaults and of the tuned config, each with the geometric-mean regret it stands for, and the
-    tuned config (``fixbench tune-table``)."""
+    """The Markdown table of every tuned entry (``*.toml``) in ``folder``, by planner and track: the track
+    it runs in (an entry without ``mode`` runs in both, tuned per-task), the objective of the defaults and
+    of the tuned config, each with the geometric-mean regret it stands for, and the tuned config
+    (``fixbench tune-table``)."""
     from fixbench.bench.reporting.tables import fmt
 
     def regret(x: float) -> str:
         return f"{x:.4f} ({math.expm1(x) * 100:.0f} %)"
 
-    lines = ["| planner | trials | defaults: mean log(1 + regret) | tuned | tuned config |", "|---|--:|--:|--:|---|"]
-    for e in sorted((read_entry(p) for p in sorted(Path(folder).glob("*.toml"))), key=lambda e: e["planner"]):
+    lines = ["| planner | runs in | trials | defaults: mean log(1 + regret) | tuned | tuned config |",
+             "|---|---|--:|--:|--:|---|"]
+    entries = sorted((read_entry(p) for p in sorted(Path(folder).glob("*.toml"))),
+                     key=lambda e: (e["planner"], e["track"]))
+    for e in entries:
         cfg = ", ".join(f"{k} = {fmt(v) if isinstance(v, float) else _toml(v)}" for k, v in sorted(e["config"].items()))
-        lines.append(f"| `{e['planner']}` | {e['trials']} | {regret(e['default'])} | {regret(e['tuned'])} | "
-                     f"{cfg or '(the defaults)'} |")
+        lines.append(f"| `{e['planner']}` | {e['track']} | {e['trials']} | {regret(e['default'])} | "
+                     f"{regret(e['tuned'])} | {cfg or '(the defaults)'} |")
     return "\n".join(lines) + "\n"

@@ -32,6 +32,44 @@ def test_tuning_starts_from_the_defaults_and_never_ends_worse(tmp_path):
     assert [c.label for c in cells] == ["rules (tuned)"] and dict(cells[0].config) == result["config"]
 
 
+def test_the_held_out_track_is_tuned_on_the_positions_never_sampled(tmp_path):
+    """--track held-out: each trial trains on every 2nd position of the tuning case and is scored on the
+    others alone; the entry runs in the held-out track only, and says so."""
+    import math
+
+    import numpy as np
+
+    from fixbench.bench.tune import _tuning_problem
+    from fixbench.solvers import get
+
+    result = tune("rules", 2, cases=("wing_panel_small",), seeds=(0,), echo=lambda m: None, track="held-out",
+                  heldout_every=2)
+    p, optima = _tuning_problem("wing_panel_small")
+    res = get("rules")().solve(p, 100 * 2, seed=0, train_tasks=[0, 2])
+    held = [t for t in range(p.n_tasks) if t % 2]
+    assert list(res.held_out) == held
+    assert result["default"] == math.log1p(max(res.objective / np.mean(optima[held]) - 1, 0.0))
+    entry = matrix_entry(result)
+    assert 'label = "rules (tuned held-out)"' in entry and 'mode = ["held-out"]' in entry
+    assert "# track held-out: tuned on the held-out split (train on every 2th position" in entry
+    m = tmp_path / "m.toml"
+    m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nsamples_per_task = [10]\n'
+                 'mode = ["per-task", "held-out"]\nheldout_every = 2\n[[planners]]\nname = "random"\n' + entry)
+    cells = load_matrix(m).cells()
+    assert sorted((c.label, c.mode) for c in cells) == [("", "held-out"), ("", "per-task"),
+                                                        ("rules (tuned held-out)", "held-out")]
+
+
+def test_an_entry_restricted_to_a_mode_the_matrix_lacks_is_refused(tmp_path, capsys):
+    m = tmp_path / "m.toml"
+    m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nbudget = 10\n'
+                 '[[planners]]\nname = "random"\nmode = ["held-out"]\n')
+    assert main(["run", str(m), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "planners[0].mode" in err and "not one of the matrix's modes" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_reported_problem_is_refused_in_one_line(capsys):
     assert main(["tune", "rules", "--trials", "2", "--cases", "wing_panel"]) == 2
     err = capsys.readouterr().err.strip()
@@ -77,7 +115,7 @@ def test_tune_table_writes_refreshes_and_refuses_a_broken_entry(tmp_path, capsys
     doc.write_text("# t\n<!-- table: tune/table.md -->\nstale\n<!-- /table -->\n")
     assert main(["tune-table", str(folder), "--readme", str(doc)]) == 0
     table = (folder / "table.md").read_text(encoding="utf-8")
-    assert "| `pso` | 20 | 0.5516 (74 %) | 0.1436 (15 %) | c1 = 2.73," in table
+    assert "| `pso` | both (tuned per-task) | 20 | 0.5516 (74 %) | 0.1436 (15 %) | c1 = 2.73," in table
     assert doc.read_text() == "# t\n<!-- table: tune/table.md -->\n" + table + "<!-- /table -->\n"
     capsys.readouterr()
     (folder / "odd.toml").write_text("[[planners]]\nname = 'odd'\n")

@@ -1,9 +1,9 @@
 """Benchmark matrix files (TOML) and their deterministic expansion into cells.
 
-A matrix names cases, materials, planners (optionally with config overrides and their own budget),
-seeds, budgets, agent counts, modes and, optionally, how many tasks of each case to use. Every
-combination is one *cell*: one planner run, identified by a hash of its settings, so a rerun can
-skip what is done. The format is documented in docs/matrices.md.
+A matrix names cases, materials, planners (optionally with config overrides, their own budget and the
+cases and modes they run in), seeds, budgets, agent counts, modes and, optionally, how many tasks of
+each case to use. Every combination is one *cell*: one planner run, identified by a hash of its
+settings, so a rerun can skip what is done. The format is documented in docs/matrices.md.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ class PlannerEntry:
     max_samples_per_task: int | None = None  # the budget sweep stops here for this planner
     label: str = ""  # how reports name this entry (default: the name and its config)
     cases: tuple[str, ...] = ()  # the matrix's cases this entry runs on (empty: every one)
+    modes: tuple[str, ...] = ()  # the matrix's modes (tracks) this entry runs in (empty: every one)
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ class Matrix:
                 self.cases, self.materials, self.agents, self.modes, sweep, self.planners, self.seeds):
             if spt is not None and p.max_samples_per_task is not None and spt > p.max_samples_per_task:
                 continue
-            if p.cases and case not in p.cases:
+            if (p.cases and case not in p.cases) or (p.modes and mode not in p.modes):
                 continue
             b, s = (budget, spt) if p.budget == "matrix" else (p.budget, None)
             out.append(Cell(p.name, p.config, case, mat, agents, mode, b, seed, self.tasks, s,
@@ -282,8 +283,12 @@ def load_matrix(path: str | Path) -> Matrix:
         for c in only:
             if c not in cases:
                 raise pr.error("cases", f"'{c}' is not one of the matrix's cases ({', '.join(cases)})")
+        tracks = tuple(_list(pr, "mode", str)) if pr.raw("mode", None) is not None else ()
+        for m in tracks:
+            if m not in modes:
+                raise pr.error("mode", f"'{m}' is not one of the matrix's modes ({', '.join(modes)})")
         pr.finish()
-        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only))
+        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks))
     labels = [p.label or p.name + (str(p.config) if p.config else "") for p in planners]
     if len(set(labels)) != len(labels):
         raise r.error("planners", "two entries are the same planner and config: give them different labels")
