@@ -157,8 +157,8 @@ def matrix_entry(result: dict) -> str:
     cfg = ", ".join(f"{k} = {_toml(v)}" for k, v in sorted(result["config"].items()))
     track = result.get("track", "per-task")
     held = track == "held-out"
-    where = (f"the held-out split (train on every {result['heldout_every']}th position, scored on the others)"
-             if held else "every position")
+    where = (f"the held-out split (k = {result['heldout_every']}: trained on positions 0, k, 2k, ..., scored on "
+             "the others)" if held else "every position")
     return (f"# {result['planner']}: tuned with {len(result['trials'])} trials on {', '.join(result['cases'])} "
             f"(seeds {result['seeds']}, {result['samples_per_task']} samples a position); mean log(1 + regret): "
             f"defaults {result['default']:.4f}, tuned {result['tuned']:.4f}\n"

@@ -51,7 +51,7 @@ def test_the_held_out_track_is_tuned_on_the_positions_never_sampled(tmp_path):
     assert result["default"] == math.log1p(max(res.objective / np.mean(optima[held]) - 1, 0.0))
     entry = matrix_entry(result)
     assert 'label = "rules (tuned held-out)"' in entry and 'mode = ["held-out"]' in entry
-    assert "# track held-out: tuned on the held-out split (train on every 2th position" in entry
+    assert "# track held-out: tuned on the held-out split (k = 2: trained on positions 0, k, 2k, ..." in entry
     m = tmp_path / "m.toml"
     m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nsamples_per_task = [10]\n'
                  'mode = ["per-task", "held-out"]\nheldout_every = 2\n[[planners]]\nname = "random"\n' + entry)
@@ -77,34 +77,44 @@ def test_a_reported_problem_is_refused_in_one_line(capsys):
 
 
 TUNED = sorted((Path(__file__).resolve().parents[1] / "results" / "tune").glob("*.toml"))
+#: the entries tuned for the held-out track (`fixbench tune PLANNER --track held-out`)
+HELD = sorted((Path(__file__).resolve().parents[1] / "results" / "tune" / "held-out").glob("*.toml"))
 
 
-@pytest.mark.parametrize("path", TUNED, ids=[p.stem for p in TUNED])
+@pytest.mark.parametrize("path", TUNED + HELD, ids=[f"{p.parent.name}/{p.stem}" for p in TUNED + HELD])
 def test_committed_tuned_entries_are_valid_and_within_their_search_space(path, tmp_path):
     """Each results/tune/PLANNER.toml (`fixbench tune PLANNER --out`) loads as a matrix entry labelled
-    "PLANNER (tuned)", changes only declared tunable fields, each inside its declared range or choices,
-    and says it ended no worse than the defaults on the tuning problems (its first trial)."""
+    "PLANNER (tuned)" (in held-out/: "PLANNER (tuned held-out)", held-out cells only), changes only
+    declared tunable fields, each inside its declared range or choices, and says it ended no worse than
+    the defaults on the tuning problems (its first trial)."""
+    held = path.parent.name == "held-out"
     text = path.read_text(encoding="utf-8")
     m = re.match(r"# (\S+): tuned with (\d+) trials on (.+?) \(.*defaults ([\d.]+), tuned ([\d.]+)\n", text)
     assert m and m[1] == path.stem and int(m[2]) == 20, text.splitlines()[0]
     assert all(c.endswith("_small") for c in m[3].split(", ")) and float(m[5]) <= float(m[4])
     matrix = tmp_path / "m.toml"
-    matrix.write_text('name = "t"\ncases = ["fan_small"]\nseeds = [0]\nbudget = 10\n' + text)
-    (cell,) = load_matrix(matrix).cells()
-    assert cell.planner == path.stem and cell.label == f"{path.stem} (tuned)"
+    modes = 'mode = ["per-task", "held-out"]\nheldout_every = 2\n'
+    matrix.write_text('name = "t"\ncases = ["fan_small"]\nseeds = [0]\nbudget = 10\n' + modes + text)
+    cells = load_matrix(matrix).cells()
+    assert [c.mode for c in cells] == (["held-out"] if held else ["per-task", "held-out"])
+    cell = cells[0]
+    assert cell.planner == path.stem and cell.label == f"{path.stem} (tuned{' held-out' if held else ''})"
     declared = space(available()[path.stem])
     for key, value in dict(cell.config).items():
         kind, *bounds = declared[key]
         assert value in bounds[0] if kind == "choice" else bounds[0] <= value <= bounds[1], (key, value)
 
 
-def test_the_tuning_table_is_made_from_the_committed_entries():
-    """results/tune/table.md (which docs/results.md#tuning mirrors, test_committed_results) is
-    `fixbench tune-table results/tune` of the committed entries, one line per planner."""
-    folder = TUNED[0].parent
+@pytest.mark.parametrize("entries", [TUNED, HELD], ids=["per-task", "held-out"])
+def test_the_tuning_table_is_made_from_the_committed_entries(entries):
+    """results/tune/table.md and results/tune/held-out/table.md (which docs/results.md#tuning mirrors,
+    test_committed_results) are `fixbench tune-table FOLDER` of the committed entries, one line per planner."""
+    if not entries:
+        pytest.skip("no entry tuned for this track is committed")
+    folder = entries[0].parent
     table = (folder / "table.md").read_text(encoding="utf-8")
     assert table == tuning_table(folder)
-    assert [line.split("`")[1] for line in table.splitlines()[2:]] == [p.stem for p in TUNED]
+    assert [line.split("`")[1] for line in table.splitlines()[2:]] == [p.stem for p in entries]
 
 
 def test_tune_table_writes_refreshes_and_refuses_a_broken_entry(tmp_path, capsys):
