@@ -138,10 +138,10 @@ def reference_table(refs: dict) -> pd.DataFrame:
     them (median, worst), the most by which a regret against the reference can understate the true one."""
     recs = []
     for (case, mat, agents, n_tasks), ref in sorted(refs.items(), key=lambda kv: str(kv[0])):
-        bound = lower_bounds(ref)
+        value, bound = np.asarray(ref["per_task"], dtype=float), lower_bounds(ref)
         has = np.isfinite(bound)
-        gap = 100 * (1 - bound[has] / np.asarray(ref["per_task"], dtype=float)[has])
-        opt = np.asarray(ref["per_task"], dtype=float) * 1e6
+        gap = 100 * (1 - bound[has] / value[has])
+        opt = value * 1e6
         recs.append({"case": case, "material": mat, "agents": agents, "tasks": n_tasks,
                      "mean optimum (um)": float(opt.mean()), "min (um)": float(opt.min()),
                      "max (um)": float(opt.max()),
