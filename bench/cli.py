@@ -228,11 +228,34 @@ def validate(as_json: bool, with_parts: bool) -> None:
 @cli.command()
 @click.option("--case", default="wing_panel", show_default=True, help="Case to measure.")
 @click.option("--batch", default=200_000, show_default=True, help="Layouts in the batched call.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON object.")
-def perf(case: str, batch: int, as_json: bool) -> None:
-    """Oracle against re-assembly + direct sparse solve, run side by side."""
-    from fixbench.bench.analysis.perf import run_perf
+@click.option("--planner", "planner_name", help="Time this planner instead of the oracle: one run per "
+              "value of --vary, side by side.")
+@click.option("--vary", metavar="KEY=V1,V2,...", help="With --planner: the setting whose values are compared "
+              "(the first is the ratios' base).")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="With --planner: the rest of its config.")
+@click.option("--samples-per-task", type=click.IntRange(min=1), default=100, show_default=True,
+              help="With --planner: the budget, this many samples for each task it may evaluate.")
+@click.option("--heldout-every", type=click.IntRange(min=2), help="With --planner: the held-out track.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON object (with --planner: a list).")
+def perf(case: str, batch: int, planner_name: str | None, vary: str | None, sets: tuple[str, ...],
+         samples_per_task: int, heldout_every: int | None, seed: int, as_json: bool) -> None:
+    """Oracle against re-assembly + direct sparse solve, run side by side; or, with --planner and --vary,
+    one planner at several values of a setting (CPU seconds, phases, score), side by side."""
+    from fixbench.bench.analysis.perf import run_perf, run_planner_perf
 
+    if planner_name or vary:
+        if not (planner_name and vary):
+            raise click.UsageError("--planner and --vary go together")
+        rows = run_planner_perf(case, planner_name, sets, vary, samples_per_task=samples_per_task, seed=seed,
+                                heldout_every=heldout_every)
+        if as_json:
+            echo_json(rows)
+        else:
+            import pandas as pd
+
+            click.echo(pd.DataFrame(rows).drop(columns=["case", "planner"]).to_markdown(index=False, floatfmt=".4g"))
+        return
     res = run_perf(case, batch=batch, progress=not as_json)
     if as_json:
         echo_json(res)

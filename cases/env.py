@@ -196,6 +196,90 @@ class FixtureEnv(ParallelEnv):
         pass
 
 
+class PositionBatchEnv:
+    """The game of :class:`FixtureEnv` vectorised over positions: each step presents the episode's next
+    ``per_step`` tasks (fewer at its end) and takes one joint answer for each, so that a learner acts on
+    all of them with one batched forward and learns from all of them in one update.
+
+    Every answer is still one counted sample on the shared evaluator, evaluated one after the other in
+    the episode's order: with ``per_step=1`` a run sees exactly what it sees on :class:`FixtureEnv`
+    (the same order for the same ``reset`` seed, the same samples). Written here rather than taken from
+    a library: PettingZoo's parallel API steps one context for the whole team, and gymnasium's and
+    TorchRL's vector envs batch copies of an env, each with its own episode; this batches the positions
+    of one episode, which is what keeps every position visited once an episode.
+
+    >>> env = PositionBatchEnv(load_problem("wing_panel_small"), per_step=2)
+    >>> env.reset(seed=0).tolist()
+    [0, 1]
+    >>> env.step(np.zeros((2, env.problem.n_agents), dtype=np.int64))["max_u"].shape
+    (2,)
+    >>> env.tasks.tolist(), env.samples
+    ([2, 3], 2)
+    """
+
+    def __init__(self, problem: Problem, per_step: int, evaluator: Evaluator | None = None, task_ids=None,
+                 shuffle: bool = False, budget: int | None = None):
+        src = problem.spec.source
+        if isinstance(per_step, bool) or not isinstance(per_step, (int, np.integer)) or per_step < 1:
+            raise CaseError(src, "per_step", f"must be a positive integer, got {per_step!r}")
+        self.problem, self.per_step, self.shuffle = problem, int(per_step), bool(shuffle)
+        self.ev = evaluator if evaluator is not None else problem.evaluator(budget)
+        ids = np.arange(problem.n_tasks) if task_ids is None else np.asarray(task_ids, dtype=np.int64)
+        if ids.ndim != 1 or len(ids) == 0:
+            raise CaseError(src, "tasks", "need a non-empty list of task indices")
+        for t in ids:
+            problem.check_task(int(t))
+        self.task_ids = ids
+        self.sizes = np.array([len(s) for s in problem.action_sets], dtype=np.int64)
+        self._order, self._pos = ids.copy(), len(ids)  # over until reset
+
+    @property
+    def samples(self) -> int:
+        """Oracle samples spent so far (one per answer)."""
+        return self.ev.samples
+
+    @property
+    def done(self) -> bool:
+        """Whether the episode has visited every task (then :meth:`reset`)."""
+        return self._pos >= len(self._order)
+
+    @property
+    def tasks(self) -> np.ndarray:
+        """The tasks (indices into ``problem.tasks``) the agents are asked about now."""
+        return self._order[self._pos:self._pos + self.per_step].copy()
+
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        """A new episode, in the tasks' order or shuffled as :class:`FixtureEnv` shuffles with ``seed``;
+        returns the first step's tasks."""
+        rng = np.random.default_rng(seed)
+        self._order = rng.permutation(self.task_ids) if self.shuffle else self.task_ids.copy()
+        self._pos = 0
+        return self.tasks
+
+    def step(self, actions) -> dict:
+        """Evaluate one joint answer per task of :attr:`tasks`: ``actions`` (n, agents), indices into each
+        agent's own set. Returns arrays of n values: the measured keys of ``FixtureEnv``'s infos (m),
+        ``reward_gaussian``, ``reward_bell`` and ``task``. Anything but integers inside the sets is
+        refused in one line, before any sample is spent."""
+        src = self.problem.spec.source
+        if self.done:
+            raise CaseError(src, "step", "episode is over; call reset()")
+        tasks, a = self.tasks, np.asarray(actions)
+        if a.shape != (len(tasks), len(self.sizes)) or a.dtype.kind not in "iu":
+            raise CaseError(src, "actions", f"must be integers of shape {(len(tasks), len(self.sizes))}, "
+                            f"got {a.dtype} {a.shape}")
+        bad = (a < 0) | (a >= self.sizes)
+        if bad.any():
+            k, i = np.argwhere(bad)[0]
+            raise CaseError(src, f"actions[{k}, {i}]", f"{int(a[k, i])} is outside 0..{self.sizes[i] - 1}")
+        self.ev.afford(len(tasks))  # all or nothing
+        layouts = np.column_stack([s[a[:, i]] for i, s in enumerate(self.problem.action_sets)])
+        rows = [self.ev.evaluate(int(t), layouts[k:k + 1]).row(0) for k, t in enumerate(tasks)]
+        self._pos += len(tasks)
+        out = {k: np.array([r[k] for r in rows]) for k in (*MEASURED, "reward_gaussian", "reward_bell")}
+        return {**out, "task": tasks}
+
+
 def make_env(case: str | Path | Problem, material: str | None = None, agents: int | None = None,
              tasks=None, budget: int | None = None, reward: str = "gaussian",
              shuffle: bool = False, pad_actions: bool = False) -> FixtureEnv:

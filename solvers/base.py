@@ -76,6 +76,11 @@ class PlannerConfig:
     tunable: ClassVar[dict[str, tuple]] = {
     }
 
+    hash_omits: ClassVar[dict[str, Any]] = {}
+    """Fields added after runs were committed, with the value that does what those runs did: at that
+    value a field is left out of :meth:`hash`, so that those runs keep the hash of the config they ran
+    (the same planner); at any other value it is hashed like every field."""
+
     def __post_init__(self) -> None:
         for name, kind in _field_types(type(self)).items():
             value = getattr(self, name)
@@ -83,8 +88,10 @@ class PlannerConfig:
                 raise ConfigError(name, f"must be of type {_type_name(kind)}, got {value!r}")
 
     def hash(self) -> str:
-        """Short stable hash of the config (for result rows)."""
-        text = json.dumps(asdict(self), sort_keys=True, default=str)
+        """Short stable hash of the config (for result rows): every field, but those of ``hash_omits`` at
+        their listed value."""
+        d = {k: v for k, v in asdict(self).items() if k not in self.hash_omits or v != self.hash_omits[k]}
+        text = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:10]
 
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fixbench.cases.env import FixtureEnv
+from fixbench.cases.env import FixtureEnv, PositionBatchEnv
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
 from fixbench.solvers.base import PlannerConfig, PlannerError, TracedEvaluator, Training, at_least, require
@@ -138,14 +138,18 @@ def torch_generator(rng: np.random.Generator) -> torch.Generator:
 # the training loop's parts
 # ---------------------------------------------------------------------------------------------
 def training_env(problem: Problem, ev: TracedEvaluator, ids: np.ndarray, shuffle: bool,
-                 reward: str = "gaussian") -> tuple[FixtureEnv, float]:
+                 reward: str = "gaussian", per_step: int | None = None) -> tuple[Any, float]:
     """The env over the training tasks on the run's counted evaluator, and the seconds the oracle's
     set-up took first (every column now, or from the disk cache; no samples; in no training timer).
     ``reward`` is what the env pays; a learner on the scaled reward transforms the env's ``max_u``
-    itself (:func:`scaled_reward`)."""
+    itself (:func:`scaled_reward`). With ``per_step``, the env vectorised over positions
+    (:class:`~fixbench.cases.env.PositionBatchEnv`: that many positions a step), else the PettingZoo
+    :class:`~fixbench.cases.env.FixtureEnv`."""
     t0 = time.perf_counter()
     problem.oracle.prepare()
     setup_s = time.perf_counter() - t0
+    if per_step is not None:
+        return PositionBatchEnv(problem, per_step, evaluator=ev, task_ids=ids, shuffle=shuffle), setup_s
     return FixtureEnv(problem, reward=reward, shuffle=shuffle, task_ids=ids, evaluator=ev), setup_s
 
 
@@ -162,11 +166,14 @@ def epsilon_by_run_fraction(step: int, steps_total: int, start: float, end: floa
     return epsilon_by_step(step, start, end, decay_fraction * steps_total)
 
 
-def explore(rng: np.random.Generator, eps: float, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def explore(rng: np.random.Generator, eps, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which agents explore this step (each with probability ``eps``, independently) and a uniform random
-    action of each agent's set (``sizes``: the set sizes), for the explorers to play."""
-    explorers = rng.random(len(sizes)) < eps
-    return explorers, (rng.random(len(sizes)) * sizes).astype(np.int64)
+    action of each agent's set (``sizes``: the set sizes), for the explorers to play: (agents,) arrays
+    for a float ``eps``; (n, agents) for an array of n epsilons, one a position of a batched step (with
+    n = 1, the same draws as a float ``eps``)."""
+    shape = np.shape(eps) + (len(sizes),)
+    explorers = rng.random(shape) < np.asarray(eps)[..., None]
+    return explorers, (rng.random(shape) * sizes).astype(np.int64)
 
 
 def scaled_reward(scale: LogScale, max_u: float) -> tuple[float, float]:
@@ -198,6 +205,14 @@ class Replay:
         self.task[k], self.value[k] = task, value
         self.act[k] = torch.from_numpy(act)
         self.added += 1
+
+    def add_many(self, tasks: np.ndarray, acts: np.ndarray, values: np.ndarray) -> None:
+        """:meth:`add` for each row of a batched step, in order."""
+        k = (self.added + np.arange(len(tasks))) % self.cap
+        self.task[k] = torch.as_tensor(tasks, dtype=torch.long)
+        self.act[k] = torch.as_tensor(acts, dtype=torch.long)
+        self.value[k] = torch.as_tensor(values, dtype=torch.float32)
+        self.added += len(tasks)
 
     def sample(self, rng: np.random.Generator, shape) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Transitions drawn uniformly with replacement, ``shape`` of them: (tasks, joint actions, values)."""

@@ -1,6 +1,6 @@
 """Nash-Q multi-robot fixture planner (MRFP) and its independent-learner ablation, in PyTorch.
 
-Read top to bottom (cleanrl style): hyper-parameters, the training loop on the PettingZoo env, the
+Read top to bottom (cleanrl style): hyper-parameters, the training loop on the env, the
 greedy policy, the two planners. The engine that makes it fast (batched Q-networks, fused optimiser,
 compiled best response) lives beside it in :mod:`fixbench.solvers.marl_engine`; what every learner
 shares (the split, the budget as episodes, the replay, the step record, the ``info`` keys) in
@@ -8,8 +8,11 @@ shares (the split, the budget as episodes, the replay, the step record, the ``in
 
 The game (docs/protocol.md#the-game): each step shows the agents one task (its feature vector); each agent
 picks one candidate of its own set; the layout is evaluated once on the counted oracle (one sample
-per step, through :class:`fixbench.cases.env.FixtureEnv`) and every agent gets the same reward. One episode is
-one pass over the training tasks. Defaults equal the seed's Table I: 100 episodes, epsilon
+a position, through :class:`fixbench.cases.env.PositionBatchEnv`) and every agent gets the same reward. One
+episode is one pass over the training tasks. ``positions_per_step`` = 1 (the default, the seed's protocol:
+one position a step, one update a sample) or P: P positions a step, their best responses in one batched
+pass, and one update a step on P minibatches' worth of transitions (docs/performance.md).
+Defaults equal the seed's Table I: 100 episodes, epsilon
 0.05 + 0.85 exp(-steps / 3500) over the whole run, one-step bandit target
 (1 - alpha) Q_target(s, a) + alpha r with alpha = 0.8 (no bootstrap), AdamW lr 1e-4 amsgrad,
 batch 32, replay capacity 1e6, Huber loss, gradient values clipped at 100, soft target update
@@ -35,7 +38,7 @@ best-respond to them. Iterations and convergence are reported in ``info``.
 ``iql`` (the reference code's independent learners): the same networks over the task features
 only; each agent acts on its own argmax.
 
-Budget: one sample per env step. The run trains for ``episodes`` passes over the training tasks, or,
+Budget: one sample per position answered. The run trains for ``episodes`` passes over the training tasks, or,
 if the budget is smaller, for as many full episodes as fit (best effort; ``info["episodes_run"]``);
 if not even one episode fits, :class:`PlannerError`. The returned layouts are the greedy policy's
 (epsilon = 0, no samples) for every task, training tasks and held-out tasks alike. Scored as every
@@ -100,6 +103,8 @@ class NashQConfig(QLearnerConfig):
         "batch": ("choice", [16, 32, 64]),
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
+    hash_omits: ClassVar[dict[str, object]] = {"positions_per_step": 1}
+    """One position a step is what every run made before the field existed did."""
 
     eps_decay: float = 3500.0
     """Epsilon decay in env steps, the same in a run of any length: epsilon = end + (start - end)
@@ -128,6 +133,11 @@ class NashQConfig(QLearnerConfig):
     samples: no width set by hand; :class:`fixbench.cases.rewards.LogScale`), 'gaussian' (seed paper,
     the case's hand-set ``[reward]`` widths) or 'bell' (reference code)."""
 
+    positions_per_step: int = 1
+    """Positions acted on in one step (:class:`fixbench.cases.env.PositionBatchEnv`): the best responses of
+    all of them in one batched pass, and one update on ``batch`` transitions a position of the step for
+    every agent. 1: one position, one update a sample, the seed's protocol."""
+
     max_sweeps: int = 10
     """nashq: most Gauss-Seidel best-response sweeps per joint action."""
 
@@ -142,7 +152,7 @@ class NashQConfig(QLearnerConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        at_least(self, 1, "hidden", "batch", "max_sweeps")
+        at_least(self, 1, "hidden", "batch", "positions_per_step", "max_sweeps")
         require(self, "lr", self.lr > 0, "positive")
         require(self, "eps_decay", self.eps_decay > 0, "positive")
         require(self, "alpha", 0 < self.alpha <= 1, "in (0, 1]")
@@ -216,12 +226,12 @@ class _QPlanner(Planner):
         cfg, n = self.config, problem.n_agents
         # the scaled reward is the learner's own transform of the env's max_u (the env pays the Gaussian)
         scale = LogScale(cfg.scale_samples) if cfg.reward == "scaled" else None
-        env, setup_s = training_env(problem, ev, ids, cfg.shuffle, "gaussian" if scale else cfg.reward)
+        env, setup_s = training_env(problem, ev, ids, cfg.shuffle, per_step=cfg.positions_per_step)
         tm = Timings(setup=setup_s)
         L = Learner(problem, cfg.hidden, cfg.max_sweeps, self.joint, device, gen)
         opt = Update(L.q, L.target, cfg.lr, cfg.grad_clip, cfg.tau, device)
         replay = Replay(cfg.capacity, episodes * len(ids), n, device)  # the reward, or ln u for the scaled reward
-        agents, sizes = env.possible_agents, np.array(L.sizes)
+        sizes = np.array(L.sizes)
 
         record, ep_return, ep_loss, ep_times = StepRecord(), [], [], []
         sweeps_sum, conv_sum, br_calls = 0, 0, 0
@@ -229,35 +239,37 @@ class _QPlanner(Planner):
         for _ in range(episodes):
             env.reset(seed=int(rng.integers(2**31 - 1)))
             loss_sum, n_upd, ret = torch.zeros(n, device=device), 0, 0.0
-            while env.agents:
-                # act: exploring agents play a random action, the others best-respond to them
+            while not env.done:
+                # act: on each position, exploring agents play a random action, the others best-respond to them
                 t0 = time.perf_counter()
-                task = env.task
-                explorers, act = explore(rng, epsilon_by_step(steps, cfg.eps_start, cfg.eps_end, cfg.eps_decay),
-                                         sizes)
-                if not explorers.all():
-                    a, sw, cv = L.greedy(np.array([task]), explorers[None], act[None])
-                    act = a[0]
+                tasks = env.tasks
+                eps = [epsilon_by_step(steps + k, cfg.eps_start, cfg.eps_end, cfg.eps_decay) for k in range(len(tasks))]
+                explorers, act = explore(rng, eps, sizes)
+                greedy_rows = ~explorers.all(axis=1)
+                if greedy_rows.any():
+                    a, sw, cv = L.greedy(tasks[greedy_rows], explorers[greedy_rows], act[greedy_rows])
+                    act[greedy_rows] = a  # one Gauss-Seidel run over the step's positions together
                     sweeps_sum, conv_sum, br_calls = sweeps_sum + sw, conv_sum + cv, br_calls + 1
                 t1 = time.perf_counter()
-                _, rew, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
+                out = env.step(act)
                 t2 = time.perf_counter()
 
-                # record: the step's reward (scaled from max_u, or the env's), into the replay
-                max_u = infos[agents[0]]["max_u"]
-                r = stored = rew[agents[0]]
-                if scale is not None:
-                    r, stored = scaled_reward(scale, max_u)
-                record.add(r, max_u, task)
-                ret += r
-                replay.add(task, act, stored)
-                steps += 1
+                # record: each position's reward (scaled from max_u, or the env's), into the replay
+                stored = []
+                for t, u, r in zip(tasks, out["max_u"], out[f"reward_{'gaussian' if scale else cfg.reward}"]):
+                    r, s = (scaled_reward(scale, float(u)) if scale is not None else (float(r), float(r)))
+                    record.add(r, float(u), int(t))
+                    ret += r
+                    stored.append(s)
+                replay.add_many(tasks, act, np.array(stored))
+                steps += len(tasks)
 
-                # learn: every agent on its own minibatch, target (1 - alpha) Q_target + alpha r
+                # learn: every agent on its own minibatch, target (1 - alpha) Q_target + alpha r; one update a
+                # step on the transitions of the step's positions (cfg.batch each)
                 if len(replay) >= cfg.batch:
-                    tasks, acts, stored_r = replay.sample(rng, (n, cfg.batch))
+                    tasks_b, acts, stored_r = replay.sample(rng, (n, cfg.batch * len(tasks)))
                     batch_r = stored_r if scale is None else scale.reward(stored_r)
-                    loss = L.td_grad(tasks, acts, batch_r, cfg.alpha)
+                    loss = L.td_grad(tasks_b, acts, batch_r, cfg.alpha)
                     opt.step()  # clip, AdamW, soft target update
                     loss_sum += loss
                     n_upd += 1

@@ -35,9 +35,13 @@ Design:
 - acting: each agent explores on its own with probability epsilon (a uniform random action of its
   set), epsilon = end + (start - end) exp(-step / (eps_decay * run steps)); the greedy joint action is
   every agent's own argmax, exact for VDN (the sum decomposes). One step scores every action of every
-  non-exploring agent in one batched forward pass (the wing panel: 3,333 rows).
+  non-exploring agent in one batched forward pass (the wing panel: 3,333 rows a position).
+- positions a step (``positions_per_step``, :class:`fixbench.cases.env.PositionBatchEnv`): 1, the
+  seed's protocol, acts on one position and makes one update a sample; P acts on P positions with one
+  forward pass and makes the step's P updates as one, on all their transitions. Every answer is still
+  one counted sample. What it saves and costs on the wing panel: docs/performance.md.
 
-Budget: one sample per env step. The run trains for ``episodes`` passes over the training tasks, or,
+Budget: one sample per position answered. The run trains for ``episodes`` passes over the training tasks, or,
 if the budget is smaller, for as many full episodes as fit (best effort, ``info["episodes_run"]``); if
 not even one fits, :class:`PlannerError`. The returned layouts are the greedy policy's (epsilon 0, no
 samples) on every task, training and held-out alike (``returns_policy``); the harness scores the run by
@@ -93,6 +97,8 @@ class VDNConfig(QLearnerConfig):
         "batch": ("choice", [32, 64, 128]),
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
+    hash_omits: ClassVar[dict[str, object]] = {"positions_per_step": 1}
+    """One position a step is what every run made before the field existed did."""
 
     hidden: int = 128
     """Width of each hidden layer of the shared Q-network."""
@@ -117,12 +123,18 @@ class VDNConfig(QLearnerConfig):
     * run steps)), so that a short run exploits too (the 50,000-step protocol run: 10,000 steps; nashq's
     ``eps_decay`` is in steps, 3,500 in any run; ``learners.epsilon_by_run_fraction``)."""
 
+    positions_per_step: int = 1
+    """Positions acted on in one step (:class:`fixbench.cases.env.PositionBatchEnv`): one batched forward
+    scores every action on all of them, and the updates due in the step (one every ``update_every``
+    samples, ``batch`` transitions each) are made as one update on all their transitions. 1: one
+    position, one update a sample, the seed's protocol."""
+
     greedy_chunk: int = 32
     """Tasks scored at once by the final greedy policy (memory: chunk x all actions x hidden floats)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        at_least(self, 1, "hidden", "layers", "batch", "update_every", "greedy_chunk")
+        at_least(self, 1, "hidden", "layers", "batch", "update_every", "positions_per_step", "greedy_chunk")
         require(self, "lr", self.lr > 0, "positive")
         require(self, "weight_decay", self.weight_decay >= 0, "0 or more")
         require(self, "eps_decay", self.eps_decay > 0, "positive")
@@ -230,43 +242,47 @@ class VDN(Planner):
         cfg, n = self.config, problem.n_agents
         steps_total = episodes * len(ids)
         # the env pays the seed's Gaussian reward; the learner's reward is its own transform of max_u
-        env, setup_s = training_env(problem, ev, ids, cfg.shuffle)
+        env, setup_s = training_env(problem, ev, ids, cfg.shuffle, per_step=cfg.positions_per_step)
         tm = Timings(setup=setup_s)
         acts, feats = Actions(problem), torch.tensor(task_features(problem, "min-max"), dtype=torch.float32)
         q = SharedQ(feats.shape[1] + acts.rows.shape[1], cfg.hidden, cfg.layers, gen)
         opt = torch.optim.AdamW(q.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         scale = LogScale(cfg.scale_samples)
         replay = Replay(cfg.capacity, steps_total, n)  # ln u: rescaled at each update
-        agents = env.possible_agents
 
         record, episode_loss = StepRecord(), []
         steps = updates = 0
         for _ in range(episodes):
             env.reset(seed=int(rng.integers(2**31 - 1)))
             loss_sum, n_upd = 0.0, 0
-            while env.agents:
-                # act: per-agent epsilon-greedy; the greedy agents' argmax from one batched pass
+            while not env.done:
+                # act: per-agent epsilon-greedy on each position; the greedy answers from one batched pass
                 t0 = time.perf_counter()
-                task = env.task
-                eps = epsilon_by_run_fraction(steps, steps_total, cfg.eps_start, cfg.eps_end, cfg.eps_decay)
+                tasks = env.tasks
+                eps = [epsilon_by_run_fraction(steps + k, steps_total, cfg.eps_start, cfg.eps_end, cfg.eps_decay)
+                       for k in range(len(tasks))]
                 explorers, act = explore(rng, eps, acts.sizes)
                 if not explorers.all():
-                    act = np.where(explorers, act, greedy(q, acts, feats, np.array([task]))[0])
+                    act = np.where(explorers, act, greedy(q, acts, feats, tasks))
                 t1 = time.perf_counter()
-                _, _, _, _, infos = env.step({ag: int(act[i]) for i, ag in enumerate(agents)})
+                max_u = env.step(act)["max_u"]
                 t2 = time.perf_counter()
 
-                # record: the scaled reward of this step, ln u into the replay
-                max_u = infos[agents[0]]["max_u"]
-                r, log_u = scaled_reward(scale, max_u)
-                record.add(r, max_u, task)
-                replay.add(task, act, log_u)
-                steps += 1
+                # record: each position's scaled reward, its ln u into the replay
+                log_us = []
+                for t, u in zip(tasks, max_u):
+                    r, log_u = scaled_reward(scale, float(u))
+                    record.add(r, float(u), int(t))
+                    log_us.append(log_u)
+                replay.add_many(tasks, act, np.array(log_us))
+                due = sum((s + 1) % cfg.update_every == 0 for s in range(steps, steps + len(tasks)))
+                steps += len(tasks)
 
-                # learn: regress Q_tot on the shared reward (one-step episodes: no bootstrap)
-                if len(replay) >= cfg.batch and steps % cfg.update_every == 0:
-                    tasks, actions, log_us = replay.sample(rng, cfg.batch)
-                    loss = torch.mean((q_tot(q, acts, feats, tasks, actions) - scale.reward(log_us)) ** 2)
+                # learn: regress Q_tot on the shared reward (one-step episodes: no bootstrap); one update
+                # a step on the transitions of every update due in it (cfg.batch each)
+                if len(replay) >= cfg.batch and due:
+                    tasks_b, actions, log_ub = replay.sample(rng, cfg.batch * due)
+                    loss = torch.mean((q_tot(q, acts, feats, tasks_b, actions) - scale.reward(log_ub)) ** 2)
                     opt.zero_grad(set_to_none=False)
                     loss.backward()
                     opt.step()

@@ -82,6 +82,19 @@ def test_perf_json(capsys):
         assert res[key] > 0
 
 
+def test_perf_of_a_planner_at_several_values_of_a_setting(capsys):
+    """Side by side on one problem and seed: the same budget spent by each, the same layouts where
+    the setting changes no bit (positions_per_step 1 twice), the first run the ratios' base."""
+    rows = json.loads(run(capsys, "perf", "--case", "fan_small", "--planner", "vdn", "--vary",
+                          "positions_per_step=1,1,3", "--set", "hidden=8", "--samples-per-task", "4", "--json"))
+    assert [r["positions_per_step"] for r in rows] == ["1", "1", "3"]
+    assert all(r["samples"] == 24 and r["cpu_s"] > 0 and r["time_select_s"] >= 0 for r in rows)
+    assert rows[0]["cpu_ratio"] == 1 and rows[0]["objective_m"] == rows[1]["objective_m"]
+    assert main(["perf", "--planner", "vdn", "--vary", "positions_per_step=1,0"]) == 2
+    assert "positions_per_step" in capsys.readouterr().err
+    assert main(["perf", "--planner", "vdn"]) == 2
+
+
 def test_solve_json(capsys):
     res = json.loads(run(capsys, "solve", "fan_small", "--planner", "random", "--budget", "60",
                          "--seed", "3", "--json"))

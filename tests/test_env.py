@@ -9,7 +9,7 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from fixbench.cases import make_env
-from fixbench.cases.env import INFO_KEYS, MEASURED, UNMEASURED
+from fixbench.cases.env import INFO_KEYS, MEASURED, UNMEASURED, PositionBatchEnv
 from fixbench.cases.errors import BudgetExhausted, CaseError
 
 TASKS = [0, 1, 2]
@@ -155,3 +155,47 @@ def test_shuffle_and_bell():
     assert orders[0] == orders[1] and sorted(orders[2]) == TASKS
     with pytest.raises(CaseError):
         make_env(env.problem, reward="nope")
+
+
+@pytest.mark.parametrize("per_step", [1, 2, 5])
+def test_the_env_batched_over_positions_sees_what_one_position_a_step_sees(per_step):
+    """PositionBatchEnv: the shuffled order of FixtureEnv for the same seed, one sample an answer,
+    the same measured values, the last step shorter, and the episode's end."""
+    one = make_env("wing_panel_small", shuffle=True)
+    batched = PositionBatchEnv(one.problem, per_step, shuffle=True)
+    rng = np.random.default_rng(3)
+    for seed in (7, 8):
+        one.reset(seed=seed)
+        first = batched.reset(seed=seed)
+        assert len(first) == min(per_step, one.problem.n_tasks) and first[0] == one.task
+        while not batched.done:
+            tasks = batched.tasks
+            acts = np.column_stack([rng.integers(0, len(s), len(tasks)) for s in one.problem.action_sets])
+            out = batched.step(acts)
+            for k, t in enumerate(tasks):
+                assert one.task == t
+                _, rew, _, _, infos = one.step({a: acts[k, i] for i, a in enumerate(one.possible_agents)})
+                info = infos[one.possible_agents[0]]
+                assert all(out[key][k] == info[key] for key in MEASURED)
+                assert out["reward_gaussian"][k] == rew[one.possible_agents[0]]
+        assert one.agents == [] and batched.samples == one.samples
+    with pytest.raises(CaseError, match="episode is over"):
+        batched.step(acts)
+
+
+@pytest.mark.parametrize("bad", [np.array([[0, 99]]), np.array([[-1, 0]]), np.array([[0.0, 0.0]]),
+                                 np.zeros((2, 2), dtype=np.int64)])
+def test_the_batched_env_refuses_bad_answers_and_spends_all_or_nothing(bad):
+    p = make_env("fan_small", agents=2).problem
+    env = PositionBatchEnv(p, 1, budget=3)
+    env.reset()
+    with pytest.raises(CaseError) as err:
+        env.step(bad)
+    assert "\n" not in str(err.value) and "actions" in str(err.value) and env.samples == 0
+    env = PositionBatchEnv(p, 4, budget=3)  # a step of 4 answers on a budget of 3: refused whole
+    env.reset()
+    with pytest.raises(BudgetExhausted):
+        env.step(np.zeros((4, 2), dtype=np.int64))
+    assert env.samples == 0
+    with pytest.raises(CaseError, match="per_step"):
+        PositionBatchEnv(p, 0)

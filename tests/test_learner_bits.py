@@ -35,6 +35,8 @@ from fixbench.solvers.registry import get
 from fixbench.solvers.vdn import VDNConfig
 
 LEARNERS = ("nashq", "iql", "vdn")
+#: every learner, one position a step and several (the last step of an episode shorter)
+RUNS = [pytest.param(name, per_step, id=f"{name}-{per_step}") for name in LEARNERS for per_step in (1, 3)]
 #: every key of learners.learner_info, in every learner's info
 COMMON_KEYS = {"algorithm", "episodes_run", "budget_limited", "train_tasks", "held_out_tasks", "steps",
                "time_setup_s", "time_select_s", "time_oracle_s", "time_update_s", "time_greedy_s", "time_total_s",
@@ -45,11 +47,12 @@ COMMON_CURVES = {"step_reward": "step", "step_max_u": "step", "step_task": "step
 NASHQ_DEFAULTS = {"episodes": 100, "eps_start": 0.9, "eps_end": 0.05, "eps_decay": 3500.0, "alpha": 0.8,
                   "lr": 1e-4, "batch": 32, "capacity": 1_000_000, "hidden": 256, "grad_clip": 100.0, "tau": 0.005,
                   "reward": "scaled", "scale_samples": 500, "max_sweeps": 10, "shuffle": False, "train_tasks": (),
-                  "train_fraction": 1.0, "optima": (), "device": "cpu", "threads": 1, "save_path": ""}
+                  "train_fraction": 1.0, "optima": (), "device": "cpu", "threads": 1, "save_path": "",
+                  "positions_per_step": 1}
 VDN_DEFAULTS = {"episodes": 100, "hidden": 128, "layers": 2, "lr": 3e-3, "weight_decay": 1e-4, "batch": 64,
                 "update_every": 1, "capacity": 1_000_000, "eps_start": 0.9, "eps_end": 0.05, "eps_decay": 0.2,
                 "scale_samples": 500, "shuffle": False, "train_tasks": (), "train_fraction": 1.0,
-                "greedy_chunk": 32, "threads": 1}
+                "greedy_chunk": 32, "threads": 1, "positions_per_step": 1}
 #: small networks and batches, so that a few episodes update the networks
 QUICK = {"hidden": 16, "batch": 4}
 
@@ -71,6 +74,10 @@ def test_config_fields_and_defaults_are_those_committed_runs_hash():
     # the hash covers every field by name, whatever the order the base class puts them in
     assert NashQConfig().hash() == NashQConfig(**asdict(NashQConfig())).hash()
     assert NashQConfig(eps_decay=100.0).hash() != NashQConfig().hash()
+    # a field added later is hashed only away from the value that does what the committed runs did
+    for cls in (NashQConfig, VDNConfig):
+        assert cls.hash_omits == {"positions_per_step": 1}
+        assert cls(positions_per_step=2).hash() != cls().hash() == cls(positions_per_step=1).hash()
 
 
 @pytest.mark.parametrize("cls", [NashQConfig, VDNConfig])
@@ -126,6 +133,10 @@ def test_replay_is_a_ring_of_its_capacity():
     assert tasks.shape == (2, 6) and acts.shape == (2, 6, 2) and set(tasks.ravel().tolist()) <= {2, 3, 4}
     assert torch.equal(values.long(), tasks) and torch.equal(acts[..., 0], tasks)
     assert Replay(capacity=100, steps=4, n_agents=1).cap == 4  # never more than the run's steps
+    many = Replay(capacity=3, steps=10, n_agents=2)  # a batched step's rows go in as one add each would
+    many.add_many(np.arange(2), np.array([[0, 10], [1, 11]]), np.arange(2.0))
+    many.add_many(np.arange(2, 5), np.array([[2, 12], [3, 13], [4, 14]]), np.arange(2.0, 5.0))
+    assert len(many) == 3 and all(torch.equal(getattr(many, k), getattr(replay, k)) for k in ("task", "act", "value"))
 
 
 def test_the_nashq_engine_takes_its_inputs_from_the_encoding_module():
@@ -139,10 +150,10 @@ def test_the_nashq_engine_takes_its_inputs_from_the_encoding_module():
         assert torch.equal(engine.pos[i, :len(s)], torch.tensor(pos[s], dtype=torch.float32))
 
 
-@pytest.mark.parametrize("name", LEARNERS)
-def test_same_seed_same_bits_and_exact_budget(small, name):
+@pytest.mark.parametrize("name, per_step", RUNS)
+def test_same_seed_same_bits_and_exact_budget(small, name, per_step):
     budget = 4 * small.n_tasks + small.n_tasks - 1  # four episodes fit, the remainder is left unspent
-    runs = [get(name)(**QUICK).solve(small, budget, seed=2) for _ in range(2)]
+    runs = [get(name)(**QUICK, positions_per_step=per_step).solve(small, budget, seed=2) for _ in range(2)]
     a, b = runs
     assert a.samples == b.samples == 4 * small.n_tasks and a.info["episodes_run"] == 4
     assert a.info["budget_limited"] and a.info["steps"] == a.samples
@@ -157,14 +168,14 @@ def test_same_seed_same_bits_and_exact_budget(small, name):
         if not key.startswith("time_"):
             assert curve.unit == b.training.curves[key].unit
             assert curve.values.tobytes() == b.training.values(key).tobytes(), key
-    other = get(name)(**QUICK).solve(small, budget, seed=3)
+    other = get(name)(**QUICK, positions_per_step=per_step).solve(small, budget, seed=3)
     assert other.training.values("step_max_u").tobytes() != a.training.values("step_max_u").tobytes()  # the seed
 
 
-@pytest.mark.parametrize("name", LEARNERS)
-def test_held_out_tasks_get_no_sample_and_the_info_every_learner_emits(small, name):
+@pytest.mark.parametrize("name, per_step", RUNS)
+def test_held_out_tasks_get_no_sample_and_the_info_every_learner_emits(small, name, per_step):
     train = [0, 2]
-    result = get(name)(**QUICK).solve(small, 3 * len(train), seed=1, train_tasks=train)
+    result = get(name)(**QUICK, positions_per_step=per_step).solve(small, 3 * len(train), seed=1, train_tasks=train)
     info = result.info
     assert result.samples == 3 * len(train) and set(result.trace[:, 0].astype(int)) == set(train)
     assert info["train_tasks"] == train and info["held_out_tasks"] == [1, 3]
