@@ -65,6 +65,11 @@ BAD_MATRICES = [
      ["planners[0].config", "no setting 'bogus'"]),
     ("bad mode", TINY + 'mode = "sometimes"\n', ["mode", "must be one of per-task, shared, held-out"]),
     ("not TOML", TINY + "[[[\n", ["not valid TOML"]),
+    ("per_case of another case", TINY + "[per_case.wing_panel_small]\nagents = [3]\n",
+     ["per_case.wing_panel_small", "not one of the matrix's cases"]),
+    ("per_case material", TINY + "[per_case.fan_small]\nmaterials = [\"cheese\"]\n",
+     ["per_case.fan_small.materials", "unknown material 'cheese'"]),
+    ("per_case key", TINY + "[per_case.fan_small]\nseeds = [3]\n", ["per_case.fan_small.seeds", "unknown key"]),
 ]
 
 
@@ -85,6 +90,18 @@ def test_cells_are_deterministic(tmp_path):
     ids = [c.id for c in m.cells()]
     assert len(ids) == len(set(ids)) == 2 * 2 * 2
     assert ids == [c.id for c in load_matrix(write(tmp_path, TINY, "again.toml")).cells()]
+
+
+def test_a_case_may_run_with_its_own_materials_and_agents(tmp_path):
+    """``per_case`` replaces the matrix's materials or agents for one case; the other cases' cells,
+    and their ids, are those of the matrix without it."""
+    two = TINY.replace('cases = ["fan_small"]', 'cases = ["fan_small", "wing_panel_small"]')
+    plain = load_matrix(write(tmp_path, two)).cells()
+    own = load_matrix(write(tmp_path, two + '[per_case.wing_panel_small]\nmaterials = ["titanium"]\nagents = [3]\n',
+                            "own.toml")).cells()
+    assert {c.id for c in plain if c.case == "fan_small"} == {c.id for c in own if c.case == "fan_small"}
+    assert {(c.material, c.agents) for c in own if c.case == "wing_panel_small"} == {("titanium", 3)}
+    assert len(plain) == 16 and len(own) == 8 + 4  # wing_panel_small: one material instead of two
 
 
 def test_run_resume_and_schema(tmp_path):

@@ -23,7 +23,7 @@ from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import resolve_case
 from fixbench.cases.units import Reader
 
-KEYS = ("name", "cases", "materials", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
+KEYS = ("name", "cases", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
         "tasks", "heldout_every", "proof_limit", "description")
 MODES = ("per-task", "shared", "held-out")
 
@@ -98,6 +98,13 @@ class Matrix:
     heldout_every: int | None = None
     #: most layouts a position whose optimum the reference phase proves (None: ``exact``'s own limit)
     proof_limit: int | None = None
+    #: (case, key, values): a case's own ``materials`` or ``agents`` instead of the matrix's
+    per_case: tuple[tuple[str, str, tuple], ...] = ()
+
+    def of(self, case: str, key: str) -> tuple:
+        """The values of ``key`` ("materials" or "agents") ``case`` runs with: its own in ``per_case``,
+        else the matrix's."""
+        return next((v for c, k, v in self.per_case if c == case and k == key), getattr(self, key))
 
     def cells(self) -> list[Cell]:
         """Every cell, in a fixed order (case, material, agents, mode, budget, planner, seed).
@@ -107,8 +114,9 @@ class Matrix:
         the sweep. Held-out cells carry ``heldout_every``."""
         out = []
         sweep = [(None, s) for s in self.samples_per_task] or [(b, None) for b in self.budgets]
-        for case, mat, agents, mode, (budget, spt), p, seed in itertools.product(
-                self.cases, self.materials, self.agents, self.modes, sweep, self.planners, self.seeds):
+        combos = ((case, *rest) for case in self.cases for rest in itertools.product(
+            self.of(case, "materials"), self.of(case, "agents"), self.modes, sweep, self.planners, self.seeds))
+        for case, mat, agents, mode, (budget, spt), p, seed in combos:
             if spt is not None and p.max_samples_per_task is not None and spt > p.max_samples_per_task:
                 continue
             if (p.cases and case not in p.cases) or (p.modes and mode not in p.modes):
@@ -205,6 +213,26 @@ def load_matrix(path: str | Path) -> Matrix:
     for m in materials:
         if m is not None and m not in MATERIALS:
             raise r.error("materials", f"unknown material '{m}' (known: {', '.join(MATERIALS)})")
+    per_case = []
+    for c, table in r.raw("per_case", {}, (dict,)).items():
+        where = _beside(path, c)
+        if where not in cases:
+            raise r.error(f"per_case.{c}", f"'{c}' is not one of the matrix's cases ({', '.join(cases)})")
+        cr = Reader(table, source, f"per_case.{c}") if isinstance(table, dict) else None
+        if cr is None:
+            raise r.error(f"per_case.{c}", "must be a table of materials and/or agents")
+        if cr.raw("materials", None) is not None:
+            ms = _list(cr, "materials", str)
+            for m in ms:
+                if m not in MATERIALS:
+                    raise cr.error("materials", f"unknown material '{m}' (known: {', '.join(MATERIALS)})")
+            per_case.append((where, "materials", tuple(ms)))
+        if cr.raw("agents", None) is not None:
+            ns = _list(cr, "agents", int)
+            if any(n < 1 for n in ns):
+                raise cr.error("agents", "must be at least 1")
+            per_case.append((where, "agents", tuple(ns)))
+        cr.finish()
     seeds = _list(r, "seeds", int)
     if ("budget" in data) == ("samples_per_task" in data):
         raise r.error("budget", "give either budget (samples a cell) or samples_per_task (a sweep), not both"
@@ -294,7 +322,8 @@ def load_matrix(path: str | Path) -> Matrix:
         raise r.error("planners", "two entries are the same planner and config: give them different labels")
     r.used.update(data)
     return Matrix(name, source, tuple(cases), tuple(materials), tuple(planners), tuple(seeds),
-                  tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every, proof_limit)
+                  tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every, proof_limit,
+                  tuple(per_case))
 
 
 def _as_text(v) -> str:
