@@ -1,8 +1,9 @@
 """What the learners (``nashq``, ``iql``: solvers/nashq.py; ``vdn``: solvers/vdn.py; ``mappo``, ``ippo`` in
 part: solvers/library_learners.py) share.
 
-A learner plays the game of docs/protocol.md#the-game on the PettingZoo env: one episode is one pass
-over the training tasks, one env step one counted sample. Around its own network and update, every
+A learner plays the game of docs/protocol.md#the-game on the PettingZoo env or on the same game batched
+over positions (:class:`~fixbench.cases.env.PositionBatchEnv`): one episode is one pass over the
+training tasks, one position answered one counted sample. Around its own network and update, every
 learner does the same things, and they live here once:
 
 - :class:`LearnerConfig`: the hyper-parameters with the same name, meaning and default in every

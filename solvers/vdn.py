@@ -8,7 +8,7 @@ acting on its own Q_i; with parameter sharing (one network for all agents, an ag
 inputs), the paper's strongest variant. The cooperative MARL reference beside ``nashq`` / ``iql``.
 
 Read top to bottom (cleanrl style): hyper-parameters, the shared Q-network, the training loop on the
-PettingZoo env (:class:`fixbench.cases.env.FixtureEnv`), the greedy policy. What every learner shares
+game's env batched over positions (:class:`fixbench.cases.env.PositionBatchEnv`), the greedy policy. What every learner shares
 (the split, the budget as episodes, the replay, the step record, the ``info`` keys) is in
 :mod:`fixbench.solvers.learners`.
 
