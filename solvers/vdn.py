@@ -8,9 +8,9 @@ acting on its own Q_i; with parameter sharing (one network for all agents, an ag
 inputs), the paper's strongest variant. The cooperative MARL reference beside ``nashq`` / ``iql``.
 
 Read top to bottom (cleanrl style): hyper-parameters, the shared Q-network, the training loop on the
-game's env batched over positions (:class:`fixbench.cases.env.PositionBatchEnv`), the greedy policy. What every learner shares
-(the split, the budget as episodes, the replay, the step record, the ``info`` keys) is in
-:mod:`fixbench.solvers.learners`.
+game's env batched over positions (:class:`fixbench.cases.env.PositionBatchEnv`), the greedy policy.
+What every learner shares (the split, the budget as episodes, the replay, the step record, the
+``info`` keys) is in :mod:`fixbench.solvers.learners`.
 
 The game (docs/protocol.md#the-game): each step shows every agent one task (its feature vector); each
 agent picks one action of its own set; the layout is evaluated once on the counted oracle (one sample
