@@ -4,6 +4,7 @@ problems every entry ran on, on the committed results/tiny (random, greedy, loca
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from fixbench.bench.reporting.comparison import (
@@ -14,7 +15,7 @@ from fixbench.bench.reporting.comparison import (
     main_table,
     show_headline,
 )
-from fixbench.bench.reporting.merge import load_runs
+from fixbench.bench.reporting.merge import in_matrix_order, load_runs
 from fixbench.bench.reporting.stats import probability_of_improvement
 
 #: greedy stands in for a learner, so that the last line has two sides
@@ -61,3 +62,21 @@ def test_ranks_use_only_the_problems_every_entry_ran_on(tiny):
     used, n_used, n_all = common_ranks(gone)
     assert (n_used, n_all) == (1, 2) and set(used["seed"]) == {0}
     assert np.isclose(part.set_index("planner")["mean_rank"].sum(), 6)  # 1 + 2 + 3 on the one problem left
+
+
+def test_the_headline_keeps_the_families_order_when_the_first_column_lacks_one(tiny):
+    """A part where a family has no entry yet (its first column) does not move that family down."""
+    rows, refs = tiny
+    head = headline_table(rows, iqm_table(rows, refs), FAMILY)
+    other = head.assign(column="a_part_first")
+    other = other[other["family"] != "marl"]  # no learner on the first part
+    shown = show_headline(pd.concat([other, head], ignore_index=True))
+    assert list(shown.iloc[:, 0]) == ["MARL learners", "local and greedy search", "random", "P(learner < classical)"]
+    assert list(shown.columns[1:]) == ["a_part_first", "fan_small"]
+
+
+def test_rows_follow_the_matrix_order_of_the_cases(tmp_path):
+    rows = pd.DataFrame({"case": ["b", "a", "c", "b"], "seed": [0, 1, 2, 3]})
+    (tmp_path / "matrix.toml").write_text('cases = ["c", "b"]\n')
+    assert in_matrix_order(rows, tmp_path)["seed"].tolist() == [2, 0, 3, 1]  # a case not listed: after
+    assert in_matrix_order(rows, tmp_path / "nowhere")["seed"].tolist() == [0, 1, 2, 3]

@@ -447,7 +447,8 @@ def show_headline(table: pd.DataFrame) -> pd.DataFrame:
     entry and ``IQM [lo, hi]``; the last line the probability of improvement and the two entries."""
     text = table.assign(cell=[f"{e}: {t}" for e, t in zip(table["entry"], ci_column(table, "iqm"))])
     wide = text.pivot(index="family", columns="column", values="cell")
-    order = list(dict.fromkeys(table["family"]))
+    present = set(table["family"])
+    order = [f for f in FAMILIES if f in present] + [f for f in dict.fromkeys(table["family"]) if f not in FAMILIES]
     wide = wide.reindex(index=[f for f in order if f != "P(learner < classical)"] + ["P(learner < classical)"],
                         columns=list(dict.fromkeys(table["column"]))).fillna("-")
     wide.index = [FAMILIES.get(f, f) for f in wide.index]

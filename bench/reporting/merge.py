@@ -84,11 +84,27 @@ class Runs:
         return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
+def in_matrix_order(rows: pd.DataFrame, run_dir: Path) -> pd.DataFrame:
+    """``rows`` with the cases in the order the run's matrix lists them (tables and figures show the parts
+    as the matrix does), a stable sort; cases the matrix does not name (or no readable matrix) after."""
+    import tomllib
+
+    try:
+        listed = tomllib.loads((Path(run_dir) / "matrix.toml").read_text()).get("cases", [])
+    except (OSError, ValueError):
+        listed = []
+    order = {c: i for i, c in enumerate(listed) if isinstance(c, str)}
+    if rows.empty or not order:
+        return rows
+    rank = rows["case"].map(lambda c: order.get(c, len(order)))
+    return rows.iloc[rank.argsort(kind="stable")].reset_index(drop=True)
+
+
 def load_rows(run_dir: Path) -> pd.DataFrame:
     """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
     where the row has one, else the planner (with its config when the run has one planner under several
     configs among the unlabelled rows; rows of older runs have no label column)."""
-    rows = load_results(run_dir)
+    rows = in_matrix_order(load_results(run_dir), run_dir)
     for c in NUMERIC:
         rows[c] = pd.to_numeric(rows[c], errors="coerce")
     rows["error"] = rows["error"].fillna("").astype(str)
@@ -146,7 +162,9 @@ def load_runs(paths: list[Path]) -> Runs:
         kept.append(r.loc[mine])
         cells.append(set(r.loc[mine, "cell"]))
     merged = pd.concat(kept, ignore_index=True)
-    merged = merged.sort_values(["case", "material", "planner", "seed", "cell"], kind="stable")
+    first = {c: i for i, c in enumerate(dict.fromkeys(merged["case"]))}  # the first run's matrix order
+    merged = merged.assign(_case=merged["case"].map(first)).sort_values(
+        ["_case", "material", "planner", "seed", "cell"], kind="stable").drop(columns="_case")
     merged = merged.reset_index(drop=True)
     merged.attrs["damaged"] = sum(r.attrs.get("damaged", 0) for r in rows)
     union = {}
