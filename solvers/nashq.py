@@ -103,6 +103,7 @@ class NashQConfig(QLearnerConfig):
         "batch": ("choice", [16, 32, 64]),
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
+
     hash_omits: ClassVar[dict[str, object]] = {"positions_per_step": 1}
     """One position a step is what every run made before the field existed did."""
 

@@ -97,6 +97,7 @@ class VDNConfig(QLearnerConfig):
         "batch": ("choice", [32, 64, 128]),
     }
     """What ``fixbench tune`` searches (bench/tune.py)."""
+
     hash_omits: ClassVar[dict[str, object]] = {"positions_per_step": 1}
     """One position a step is what every run made before the field existed did."""
 
