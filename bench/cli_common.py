@@ -14,28 +14,12 @@ import click
 import numpy as np
 
 from fixbench.cases.errors import FixbenchError
-
-
-def _strict(obj):
-    """``obj`` with every non-finite float as None, numpy scalars and arrays as plain values."""
-    if isinstance(obj, dict):
-        return {str(k): _strict(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_strict(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _strict(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if obj is None or isinstance(obj, (str, int, float, bool)):
-        return obj
-    return str(obj)
+from fixbench.cases.files import strict_value
 
 
 def echo_json(obj) -> None:
     """Print strict JSON (RFC 8259: no NaN or Infinity; missing numbers are null)."""
-    click.echo(json.dumps(_strict(obj), indent=1, allow_nan=False))
+    click.echo(json.dumps(strict_value(obj), indent=1, allow_nan=False))
 
 
 def run_command(command: click.Command, argv: list[str] | None, prog_name: str) -> int:

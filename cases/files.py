@@ -16,6 +16,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 
 def _file_mode() -> int:
     mask = os.umask(0)
@@ -65,3 +67,21 @@ def _named(exc: OSError, path: Path) -> OSError:
     if exc.filename:
         return exc
     return OSError(exc.errno, exc.strerror or str(exc), str(path))
+
+
+def strict_value(obj):
+    """``obj`` as strict JSON (RFC 8259) can hold it: every non-finite float as None (null), numpy
+    scalars and arrays as plain values, keys as text, anything else as its text."""
+    if isinstance(obj, dict):
+        return {str(k): strict_value(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict_value(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return strict_value(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if obj is None or isinstance(obj, (str, int, float, bool)):
+        return obj
+    return str(obj)

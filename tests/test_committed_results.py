@@ -53,6 +53,36 @@ def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
     assert rows["reference_source"].str.len().gt(0).all()
 
 
+@pytest.mark.parametrize("run", RUNS + ["sweep"])
+def test_every_committed_json_file_is_strict_json(run):
+    """Rows and reference snapshots parse under RFC 8259 (no NaN or Infinity): schema 3."""
+    import json
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    for path in sorted((ROOT / run).glob("*/*.json")):
+        try:
+            json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+        except ValueError as exc:
+            raise AssertionError(f"{path.relative_to(ROOT)}: {exc}") from None
+
+
+@pytest.mark.parametrize("run", RUNS)
+def test_every_committed_regret_is_bracketed(run):
+    """Every scored row carries both ends of its regret's bracket, in order; against a proven reference
+    they meet, and against one with no bound the upper end is NaN (docs/protocol.md#true-regret)."""
+    _, rows = _rows(run)
+    rows = rows[np.isfinite(rows["relative_regret"].astype(float))]
+    assert {"bound_objective_m", "relative_regret_upper"} <= set(rows.columns), f"results/{run} is not rescored"
+    low, high = rows["relative_regret"].astype(float), rows["relative_regret_upper"].astype(float)
+    bounded = np.isfinite(high)
+    assert (low[bounded] <= high[bounded] * (1 + 1e-12) + 1e-12).all()
+    assert (rows["bound_objective_m"].astype(float)[~bounded] == 0).all()
+    proven = rows["reference_proven"].astype(bool)
+    assert np.allclose(low[proven], high[proven], rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("doc", ["README.md", "docs/results.md"])
 def test_readme_tables_are_the_committed_reports(doc):
     """Every table of the README and docs/results.md that mirrors a committed table (``<!-- table:

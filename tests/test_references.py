@@ -123,9 +123,10 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert now["provenance"][-1]["action"] == "update"
     rows = store.finished()
     assert set(rows) == {"honest", "liar"}  # rescored rows keep valid checksums: none reads as damaged
-    raw = json.loads(store.row_path("honest").read_text())  # written by hand as schema 1: rewritten as 2
-    assert raw["schema"] == 2 and raw["layouts"] == good and rows["honest"]["per_task_m"] == true
+    raw = json.loads(store.row_path("honest").read_text())  # written by hand as schema 1: rewritten as 3
+    assert raw["schema"] == 3 and raw["layouts"] == good and rows["honest"]["per_task_m"] == true
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
+    assert rows["honest"]["bound_objective_m"] == 0 and np.isnan(rows["honest"]["relative_regret_upper"])
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent
 
@@ -172,6 +173,36 @@ def test_a_bound_above_the_reference_is_refused(built, folder, capsys):
     assert main(["references", "bound", "fan_small", "--agents", "2", "--time-limit", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "lower_bound_m" in err and "Traceback" not in err
+
+
+def test_regret_is_bracketed_by_the_reference_and_its_bound(tiny, built):
+    """[regret against the reference, regret against the bounds] holds the true regret (against exact's
+    optimum) in every mode: a position without a bound counts as 0, none at all gives no upper end."""
+    from fixbench.bench.running.cells import metrics
+    from fixbench.bench.running.references import _Scored
+
+    opt = get("exact")().solve(tiny, None).max_deformation
+    worse = np.array([t["max_deformation_m"] for t in built["tasks"]]) * (1 + np.arange(6) / 50)  # >= opt
+    rng = np.random.default_rng(0)
+    u = opt * (1 + rng.uniform(0, 0.3, 6))  # a planner's layouts' values
+    bounds = [float(b) for b in opt * rng.uniform(0.2, 1.0, 6)]
+    bounds[4] = None
+    ref = {"per_task": worse.tolist(), "lower_bounds": bounds, "proven": False, "shared": float(worse.max()),
+           "source": "catalog reference x.json (content 0)"}
+    for mode, every in (("per-task", None), ("held-out", 3), ("shared", None)):
+        row = {"per_task_m": u.tolist(), "mode": mode, "heldout_every": every, "agents": 2}
+        m = metrics(_Scored(row, np.empty((0, 4))), ref)
+        scored = _Scored(row, np.empty((0, 4))).scored_tasks
+        true = (u[scored].max() / opt[scored].max() if mode == "shared" else u[scored].mean() / opt[scored].mean()) - 1
+        assert m["relative_regret"] <= true <= m["relative_regret_upper"], mode
+        b = np.array([0.0 if x is None else x for x in bounds])[scored]
+        assert m["bound_objective_m"] == pytest.approx(b.max() if mode == "shared" else b.mean(), rel=1e-15)
+    m = metrics(_Scored({"per_task_m": u.tolist(), "mode": "per-task", "agents": 2}, np.empty((0, 4))),
+                dict(ref, lower_bounds=[None] * 6))
+    assert m["bound_objective_m"] == 0 and np.isnan(m["relative_regret_upper"])  # no bound: no upper end
+    proven = dict(ref, per_task=opt.tolist(), lower_bounds=opt.tolist())
+    m = metrics(_Scored({"per_task_m": u.tolist(), "mode": "per-task", "agents": 2}, np.empty((0, 4))), proven)
+    assert m["relative_regret_upper"] == pytest.approx(m["relative_regret"], rel=1e-12)  # proven: closed
 
 
 def test_check_small_counts_tasks_at_the_optimum():

@@ -1,6 +1,7 @@
-"""Row files (docs/rows.md): schema 2 writes the JSON columns as plain JSON values; schema-1 files
-(those columns as JSON text) still read, to the same in-memory row; a damaged row of either schema is
-refused; a rewrite upgrades a schema-1 row to schema 2."""
+"""Row files (docs/rows.md): schema 3 writes strict JSON, the JSON columns as plain JSON values and a
+missing number as null; schema-1 files (those columns as JSON text) and schema-2 files (a missing
+number as NaN) still read, to the same in-memory row; a damaged row of any schema is refused; a
+rewrite upgrades an older row to schema 3."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import math
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from fixbench.bench.reporting.html_report import provenance_html
 from fixbench.bench.running.store import (
@@ -40,36 +42,62 @@ def _write_schema_1(store: Store, row: dict) -> None:
     """The row as the code before schema 2 wrote it: the JSON columns as JSON text, schema 1, its
     checksum over that."""
     old = dict(row, schema=1, **{k: json.dumps(row[k]) for k in JSON_COLUMNS})
-    write_json_atomic(store.row_path(old["cell"]), old | {CHECKSUM: row_checksum(old)})
+    write_json_atomic_nan(store.row_path(old["cell"]), old | {CHECKSUM: row_checksum(old)})
 
 
 def _raw(store: Store, cell: str = "c0") -> dict:
     return json.loads(store.row_path(cell).read_text())
 
 
-def test_schema_2_round_trip(tmp_path):
+def _same(x, y) -> bool:
+    """Equal, NaN equal to NaN."""
+    return x == y or (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y))
+
+
+def _strict_loads(text: str):
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON (RFC 8259)")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def _write_schema_2(store: Store, row: dict) -> None:
+    """The row as the code before schema 3 wrote it: plain JSON values, a missing number as NaN."""
+    old = json.loads(json.dumps(dict(row, schema=2), default=str))
+    write_json_atomic_nan(store.row_path(old["cell"]), old | {CHECKSUM: row_checksum(old)})
+
+
+def write_json_atomic_nan(path, data) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1))  # NaN as Python's json writes it
+
+
+def test_schema_3_round_trip(tmp_path):
     store = Store(tmp_path / "run")
     store.write(_row(), None, None)
-    raw = _raw(store)
-    assert raw["schema"] == SCHEMA_VERSION == 2
+    text = store.row_path("c0").read_text()
+    raw = _strict_loads(text)  # strict JSON: no NaN in the file
+    assert raw["schema"] == SCHEMA_VERSION == 3 and raw["relative_regret"] is None
     assert {k: raw[k] for k in JSON_COLUMNS} == VALUES  # plain JSON values in the file, not text
     assert raw[CHECKSUM] == row_checksum(raw)
     row = store.finished()["c0"]
     assert {k: row[k] for k in JSON_COLUMNS} == VALUES and not store.damaged
+    assert math.isnan(row["relative_regret"]) and math.isnan(row["budget"])  # a missing number reads as NaN
     df = load_results(store.root)
     assert isinstance(df.loc[0, "per_task_m"], list) and df.loc[0, "layouts"] == VALUES["layouts"]
 
 
-def test_schema_1_file_reads_as_its_schema_2_twin(tmp_path):
+@pytest.mark.parametrize("schema", [1, 2])
+def test_an_older_file_reads_as_its_schema_3_twin(tmp_path, schema):
     old, new = Store(tmp_path / "old"), Store(tmp_path / "new")
-    _write_schema_1(old, _row())
+    (_write_schema_1 if schema == 1 else _write_schema_2)(old, _row())
     new.write(_row(), None, None)
-    assert isinstance(_raw(old)["per_task_m"], str)  # the file is left as it is
+    assert isinstance(_raw(old)["per_task_m"], str) == (schema == 1)  # the file is left as it is
     a, b = old.finished()["c0"], new.finished()["c0"]
     assert not old.damaged and not new.damaged
-    assert (a["schema"], b["schema"]) == (1, 2)
+    assert (a["schema"], b["schema"]) == (schema, 3)
     drop = ("schema", CHECKSUM)
-    assert {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
+    assert a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a if k not in drop)
     pd.testing.assert_frame_equal(load_results(old.root).drop(columns="schema"),
                                   load_results(new.root).drop(columns="schema"))
 
@@ -81,9 +109,9 @@ def test_damaged_rows_are_refused(tmp_path, capsys):
     raw["per_task_m"][1] = 1e-9  # a changed value inside an array: the checksum no longer matches
     write_json_atomic(store.row_path("c0"), raw)
     text = dict(_row("c1"), schema=2, per_task_m=json.dumps(VALUES["per_task_m"]))  # schema 2 with text
-    write_json_atomic(store.row_path("c1"), text | {CHECKSUM: row_checksum(text)})
+    write_json_atomic_nan(store.row_path("c1"), text | {CHECKSUM: row_checksum(text)})
     bad = dict(_row("c2"), schema=1, config="{batch=5")  # schema 1 whose text is not JSON
-    write_json_atomic(store.row_path("c2"), bad | {CHECKSUM: row_checksum(bad)})
+    write_json_atomic_nan(store.row_path("c2"), bad | {CHECKSUM: row_checksum(bad)})
     assert store.finished() == {}
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 3 and "c0.json: damaged (checksum does not match its content)" in err[0]
@@ -96,13 +124,13 @@ def test_rewrite_upgrades_a_schema_1_row(tmp_path):
     _write_schema_1(store, _row())
     before = store.finished()["c0"]
     store.rewrite(dict(before, relative_regret=0.25))
-    raw = _raw(store)
-    assert raw["schema"] == 2 and raw[CHECKSUM] == row_checksum(raw)
+    raw = _strict_loads(store.row_path("c0").read_text())
+    assert raw["schema"] == 3 and raw[CHECKSUM] == row_checksum(raw)
     assert {k: raw[k] for k in JSON_COLUMNS} == VALUES
     after = store.finished()["c0"]
     assert not store.damaged and after["relative_regret"] == 0.25
-    assert {k: v for k, v in after.items() if k not in ("schema", CHECKSUM, "relative_regret")} == {
-        k: v for k, v in before.items() if k not in ("schema", CHECKSUM, "relative_regret")}
+    drop = ("schema", CHECKSUM, "relative_regret")
+    assert after.keys() == before.keys() and all(_same(after[k], before[k]) for k in after if k not in drop)
 
 
 def test_provenance_records_are_grouped_by_value():

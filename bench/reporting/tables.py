@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from fixbench.bench.reporting.stats import SETTINGS, bootstrap_ci, iqm
+from fixbench.bench.running.cells import reference_bounds
 from fixbench.cases.errors import CaseError
 
 # formatting ------------------------------------------------------------------------------------------
@@ -83,6 +84,7 @@ def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
             "objective_um": (ok["objective_m"] * 1e6, np.mean),
             "iqm_um": (ok["objective_m"] * 1e6, iqm),
             "regret_pct": (ok["relative_regret"] * 100, np.mean),
+            "regret_upper_pct": (ok.get("relative_regret_upper", np.nan * ok["objective_m"]) * 100, np.mean),
             "samples_to_1pct": (ok["samples_to_1pct"], np.mean),
             "samples_to_5pct": (ok["samples_to_5pct"], np.mean),
             "success_5pct_pct": (ok["success_5pct"] * 100, np.mean),
@@ -112,6 +114,7 @@ def show_summary(df: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
     out["max def. (um)"] = ci_column(df, "objective_um")
     out["IQM (um)"] = ci_column(df, "iqm_um")
     out["regret (%)"] = ci_column(df, "regret_pct")
+    out["regret to bound (%)"] = ci_column(df, "regret_upper_pct")
     out["samples to 1%"] = [f"{c} ({r}/{n - f})" for c, r, n, f in
                             zip(ci_column(df, "samples_to_1pct"), df["reached_1pct"], df["cells"], df["failed"])]
     out["samples to 5%"] = [f"{c} ({r}/{n - f})" for c, r, n, f in
@@ -122,23 +125,13 @@ def show_summary(df: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
     return out
 
 
-def lower_bounds(ref: dict) -> np.ndarray:
-    """A regret reference's certified lower bound on each position's optimum (m; NaN: none): its
-    ``lower_bounds`` (a shipped reference's ``lower_bound_m``, ``exact``'s proven optima), or, in a
-    snapshot written before they were recorded, its optima where it is proven."""
-    per_task = np.asarray(ref["per_task"], dtype=float)
-    if "lower_bounds" in ref:
-        return np.array([math.nan if b is None else float(b) for b in ref["lower_bounds"]])
-    return per_task.copy() if ref.get("proven") else np.full(len(per_task), math.nan)
-
-
 def reference_table(refs: dict) -> pd.DataFrame:
     """One line a regret reference: its optima (mean, min, max; shared), proven or not, method, and its
     own gap: how many positions hold a certified lower bound and (reference - bound) / reference over
     them (median, worst), the most by which a regret against the reference can understate the true one."""
     recs = []
     for (case, mat, agents, n_tasks), ref in sorted(refs.items(), key=lambda kv: str(kv[0])):
-        value, bound = np.asarray(ref["per_task"], dtype=float), lower_bounds(ref)
+        value, bound = np.asarray(ref["per_task"], dtype=float), reference_bounds(ref)
         has = np.isfinite(bound)
         gap = 100 * (1 - bound[has] / value[has])
         opt = value * 1e6

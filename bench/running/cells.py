@@ -49,14 +49,25 @@ def _samples_to(trace: np.ndarray, task: int, target: float) -> float:
     return float(rows[0, 1]) if len(rows) else math.nan
 
 
+def reference_bounds(ref: dict) -> np.ndarray:
+    """A regret reference's certified lower bound on each position's optimum (m; NaN: none): its
+    ``lower_bounds`` (a shipped reference's ``lower_bound_m``, ``exact``'s proven optima), or, in a
+    snapshot written before they were recorded, its optima where it is proven."""
+    per_task = np.asarray(ref["per_task"], dtype=float)
+    if "lower_bounds" in ref:
+        return np.array([math.nan if b is None else float(b) for b in ref["lower_bounds"]])
+    return per_task.copy() if ref.get("proven") else np.full(len(per_task), math.nan)
+
+
 def metrics(result, reference: dict | None) -> dict:
     """Regret and runtime-to-target figures of one result against its reference."""
     n_agents = result.layouts.shape[1]
     bell = result.reward_bell if result.reward_bell is not None else np.zeros(len(result.layouts))
     out = {"reference_regret": float(n_agents * len(result.layouts) * REFERENCE_OPTIMAL_REWARD
                                      - n_agents * bell.sum())}
-    nan = {k: math.nan for k in ("reference_objective_m", "true_regret_m", "relative_regret",
-                                 "samples_to_1pct", "samples_to_5pct", "success_1pct", "success_5pct")}
+    nan = {k: math.nan for k in ("reference_objective_m", "true_regret_m", "relative_regret", "bound_objective_m",
+                                 "relative_regret_upper", "samples_to_1pct", "samples_to_5pct", "success_1pct",
+                                 "success_5pct")}
     out.update(nan, reference_proven=False, reference_source="")
     if not reference or reference.get("per_task") is None:
         return out
@@ -69,6 +80,15 @@ def metrics(result, reference: dict | None) -> dict:
     out.update(reference_objective_m=ref_obj, reference_proven=bool(reference["proven"]),
                reference_source=reference.get("source", ""),
                true_regret_m=result.objective - ref_obj, relative_regret=result.objective / ref_obj - 1)
+    # the bracket's other end: every position's optimum is at least its bound (0 where none is known), so
+    # the objective of the bounds is at most the optimal objective and the regret against it at least the
+    # true regret (the regret against the reference, a layout reached, is at most the true regret)
+    bounds = np.nan_to_num(reference_bounds(reference)[scored], nan=0.0)
+    bound_obj = float(bounds.max() if shared else bounds.mean())
+    if shared and reference["proven"]:
+        bound_obj = ref_obj
+    out.update(bound_objective_m=bound_obj,
+               relative_regret_upper=result.objective / bound_obj - 1 if bound_obj > 0 else math.nan)
     for pct, eps in (("1pct", 0.01), ("5pct", 0.05)):
         if shared:
             reach = [_samples_to(result.trace, -1, ref_obj * (1 + eps))]

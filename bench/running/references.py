@@ -449,50 +449,55 @@ class _Scored:
 
 #: row columns that depend on the regret reference (rewritten by :func:`rescore`)
 REFERENCE_COLUMNS = ("reference_objective_m", "reference_proven", "reference_source", "true_regret_m",
-                     "relative_regret", "samples_to_1pct", "samples_to_5pct", "success_1pct", "success_5pct")
+                     "relative_regret", "bound_objective_m", "relative_regret_upper", "samples_to_1pct",
+                     "samples_to_5pct", "success_1pct", "success_5pct")
 
 
 def rescore(run_dir, echo=print) -> int:
     """Bring a run directory's shipped-reference snapshots (``DIR/reference/*.json``) up to the
     shipped references as they are now, and recompute the reference-dependent columns of its rows;
-    returns the number of rows rewritten. Rows against an ``exact`` reference are left alone."""
+    returns the number of rows rewritten. An ``exact`` reference is kept as it is (its rows gain any
+    column added since they were written). A row of an older schema is written again as the current
+    one (bench/running/store.py), whether its values changed or not."""
     import json
     from pathlib import Path
 
     import pandas as pd
 
-    from fixbench.bench.running.store import Store, write_json_atomic
+    from fixbench.bench.running.store import SCHEMA_VERSION, Store, write_json_atomic
 
     store = Store(run_dir)
     rows = store.finished()
     fresh = {}
     for path in sorted((Path(run_dir) / "reference").glob("*.json")):
         ref = json.loads(path.read_text())
-        if not str(ref.get("source", "")).startswith("catalog reference"):
+        if ref.get("error") or ref.get("per_task") is None:
             continue
-        new = shipped_reference(ref["case"], ref["material"], int(ref["agents"]), int(ref["n_tasks"]))
-        if new is None:
-            continue
-        if new["per_task"] != ref["per_task"]:
-            ref.update(new)
-            write_json_atomic(path, ref)
-        fresh[reference_of(ref)] = ref
+        if str(ref.get("source", "")).startswith("catalog reference"):
+            new = shipped_reference(ref["case"], ref["material"], int(ref["agents"]), int(ref["n_tasks"]))
+            if new is None:
+                continue
+            if any(new[k] != ref.get(k) for k in new):  # values, layouts, bounds or the file's content hash
+                ref.update(new)
+                write_json_atomic(path, ref)
+        fresh[reference_of(ref)] = ref  # exact's as it is: its columns are recomputed, to the same values
     n = 0
     for cid, row in rows.items():
-        if row.get("error") or not row.get("per_task_m"):
-            continue
-        tp = Path(run_dir) / "traces" / f"{cid}.parquet"
-        trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
-        ref = fresh.get(reference_of(row))
-        m = metrics(_Scored(row, trace), ref) if ref is not None else {}
+        m = {}
+        if not row.get("error") and row.get("per_task_m") and (ref := fresh.get(reference_of(row))) is not None:
+            tp = Path(run_dir) / "traces" / f"{cid}.parquet"
+            trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
+            m = metrics(_Scored(row, trace), ref)
         if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in m
                if k in REFERENCE_COLUMNS):
             row.update({k: m[k] for k in REFERENCE_COLUMNS if k in m})
             policy = row.get("policy_objective_m")
             if isinstance(policy, (int, float)) and math.isfinite(policy):  # a learner's policy, scored beside it
                 row.update(policy_relative_regret=policy / m["reference_objective_m"] - 1)
-            store.rewrite(row)
-            n += 1
+        elif row.get("schema") == SCHEMA_VERSION:
+            continue
+        store.rewrite(row)
+        n += 1
     echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
     return n
 

@@ -12,11 +12,14 @@ Layout of a run directory::
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
 
-Schema: a row is written as ``SCHEMA_VERSION`` 2, its ``JSON_COLUMNS`` (config, per-task values,
-layouts, info, provenance) as plain JSON values. Rows of schema 1 held those columns as JSON text
-inside the JSON; they are read as they are on disk (their checksum is over that text) and then
-decoded by :func:`decode_row`, so every reader sees one in-memory form whichever schema a file has;
-:meth:`Store.rewrite` writes such a row again as schema 2.
+Schema: a row is written as ``SCHEMA_VERSION`` 3: strict JSON (RFC 8259), its ``JSON_COLUMNS``
+(config, per-task values, layouts, info, provenance) as plain JSON values and a number it has no
+value for (NaN) as null. Rows of schema 1 held those columns as JSON text inside the JSON, rows of
+schemas 1 and 2 wrote a missing number as ``NaN`` (which Python's ``json`` reads, strict parsers do
+not); they are read as they are on disk (their checksum is over that text) and then decoded by
+:func:`decode_row`, so every reader sees one in-memory form whichever schema a file has (a missing
+number is NaN there); :meth:`Store.rewrite` writes such a row again as schema 3 (``fixbench
+references rescore DIR`` rewrites every older row of a run).
 
 Integrity: a row carries its schema version, its cell id (equal to its file name), ``row_sha1``, a
 SHA-1 of its own content, and ``trace_sha1`` / ``curves_sha1``, the SHA-1 of the bytes of its trace
@@ -45,13 +48,13 @@ from pathlib import Path
 import pandas as pd
 
 from fixbench.cases.errors import CaseError
-from fixbench.cases.files import write_atomic, write_text_atomic
+from fixbench.cases.files import strict_value, write_atomic, write_text_atomic
 from fixbench.solvers.base import TRACE_COLUMNS
 
 #: the version every row is written with (``schema``)
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: the versions a row read may have (see the module docstring; a row without ``schema`` is of version 1)
-READ_VERSIONS = (1, 2)
+READ_VERSIONS = (1, 2, 3)
 
 #: column -> meaning (README "Results" documents the same table)
 ROW_SCHEMA = {
@@ -79,7 +82,12 @@ ROW_SCHEMA = {
     "reference_proven": "whether the reference is a proven optimum",
     "reference_source": "exact, or the shipped catalog reference file and its content hash",
     "true_regret_m": "objective_m - reference_objective_m",
-    "relative_regret": "objective_m / reference_objective_m - 1",
+    "relative_regret": "objective_m / reference_objective_m - 1: at most the true regret (the reference is a "
+                       "layout reached, so at least the optimum)",
+    "bound_objective_m": "the same objective of the reference's certified lower bounds on each position's optimum "
+                         "(0 for a position without one): at most the optimal objective",
+    "relative_regret_upper": "objective_m / bound_objective_m - 1: at least the true regret, so that "
+                             "[relative_regret, relative_regret_upper] brackets it (NaN: no positive bound)",
     "reference_regret": "N T pi/4 - N sum of bell rewards (the reference code's regret)",
     "samples_to_1pct": "mean over tasks of task samples until within 1 % of the optimum (NaN if never)",
     "samples_to_5pct": "same, within 5 %",
@@ -115,7 +123,8 @@ FILE_CHECKSUMS = {"traces": "trace_sha1", "curves": "curves_sha1"}
 
 
 def write_json_atomic(path: Path, data) -> None:
-    write_text_atomic(path, json.dumps(data, default=str, indent=1), ".json.tmp")
+    """``data`` as strict JSON (non-finite numbers as null: :func:`fixbench.cases.files.strict_value`)."""
+    write_text_atomic(path, json.dumps(strict_value(data), indent=1, allow_nan=False), ".json.tmp")
 
 
 def write_parquet_atomic(path: Path, df: pd.DataFrame) -> None:
@@ -157,10 +166,10 @@ def check_row(row, cell_id: str) -> str:
         return f"holds cell {row['cell']!r}, not {cell_id!r}"
     if CHECKSUM in row and row[CHECKSUM] != row_checksum(row):
         return "checksum does not match its content"
-    if row.get("schema") == SCHEMA_VERSION:
+    if row.get("schema") in (2, 3):
         text = [k for k in JSON_COLUMNS if isinstance(row.get(k), str)]
         if text:
-            return f"key '{text[0]}' is JSON text, not a JSON value (schema {SCHEMA_VERSION})"
+            return f"key '{text[0]}' is JSON text, not a JSON value (schema {row['schema']})"
     for key in ("objective_m", "mean_max_deformation_m", "samples"):
         v = row.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
@@ -174,9 +183,13 @@ def check_row(row, cell_id: str) -> str:
 def decode_row(row: dict) -> dict:
     """A valid row (checked by :func:`check_row`, its checksum over the file as it is) in its in-memory
     form: a schema-1 row's ``JSON_COLUMNS`` held as JSON text are decoded to their values (arrays,
-    objects); a schema-2 row is returned as it is. The only place rows of the two schemas meet.
-    Raises ValueError naming a column whose text is not JSON."""
-    if row.get("schema") == SCHEMA_VERSION:
+    objects); a schema-3 row's nulls outside them read as NaN (as schemas 1 and 2 wrote them); a schema-2
+    row is returned as it is. The only place rows of the schemas meet. Raises ValueError naming a
+    column whose text is not JSON."""
+    if row.get("schema") == 3:
+        return {k: math.nan if v is None and k in ROW_SCHEMA and k not in JSON_COLUMNS else v
+                for k, v in row.items()}
+    if row.get("schema") == 2:
         return row
     out = dict(row)
     for key in JSON_COLUMNS:
@@ -301,9 +314,10 @@ class Store:
         self._put({k: v for k, v in row.items() if k != CHECKSUM})
 
     def _put(self, row: dict) -> None:
-        """Write ``row`` (no checksum yet) as schema ``SCHEMA_VERSION``: its values as JSON reads them
-        back (tuples as arrays, other objects as text), then its checksum over exactly those."""
-        row = json.loads(json.dumps({**row, "schema": SCHEMA_VERSION}, default=str))
+        """Write ``row`` (no checksum yet) as schema ``SCHEMA_VERSION``: its values as strict JSON reads
+        them back (tuples as arrays, non-finite numbers as null, other objects as text), then its
+        checksum over exactly those."""
+        row = strict_value({**row, "schema": SCHEMA_VERSION})
         row[CHECKSUM] = row_checksum(row)
         write_json_atomic(self.row_path(row["cell"]), row)
 
