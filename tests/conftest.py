@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
+
+
+def strict_json_loads(text: str):
+    """``json.loads`` as an RFC 8259 parser reads: ``NaN``, ``Infinity`` and ``-Infinity`` refused."""
+    def refuse(token):
+        raise ValueError(f"not strict JSON: {token}")
+
+    return json.loads(text, parse_constant=refuse)
 
 PLATE = """
 [case]

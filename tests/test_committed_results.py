@@ -56,14 +56,11 @@ def test_every_paper_cell_has_a_finite_regret_against_a_labelled_reference():
 @pytest.mark.parametrize("run", RUNS + ["sweep"])
 def test_every_committed_json_file_is_strict_json(run):
     """Rows and reference snapshots parse under RFC 8259 (no NaN or Infinity): schema 3."""
-    import json
-
-    def refuse(name):
-        raise ValueError(f"{name} is not JSON")
+    from conftest import strict_json_loads
 
     for path in sorted((ROOT / run).glob("*/*.json")):
         try:
-            json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+            strict_json_loads(path.read_text(encoding="utf-8"))
         except ValueError as exc:
             raise AssertionError(f"{path.relative_to(ROOT)}: {exc}") from None
 

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import strict_json_loads
 
 from fixbench.bench.cli import cli, main
 from fixbench.bench.reporting.export import (
@@ -56,12 +57,6 @@ def run(tmp_path_factory):
     summary = run_matrix(root / "m.toml", root / "run", workers=1, progress=False)
     assert summary["run"] == 12 and summary["failed"] == 2
     return root / "run"
-
-
-def strict_load(text: str):
-    def refuse(c):
-        raise AssertionError(f"not strict JSON: {c}")
-    return json.loads(text, parse_constant=refuse)
 
 
 def test_cli_offers_every_format():
@@ -132,7 +127,7 @@ def test_cell_curve_per_mode():
 def test_marl_eval_layout(run, tmp_path):
     out = tmp_path / "marl"
     res = export_run(run, "marl-eval", out)
-    data = strict_load((out / "marl_eval.json").read_text())
+    data = strict_json_loads((out / "marl_eval.json").read_text())
     rows = load_results(run)
     ok = rows[rows["error"] == ""]
     assert list(data) == ["fan_small"] and res["runs"] == len(ok)
@@ -176,7 +171,7 @@ def test_marl_eval_nan_is_null(run):
     assert "NaN" not in text
     r = rows.iloc[0]
     task = "aluminium-a2-t2-" + r["mode"] + ("-k2" if r["mode"] == "held-out" else "")
-    entry = strict_load(text)["fan_small"][task][r["algorithm"]][f"seed_{r['seed']}"]
+    entry = strict_json_loads(text)["fan_small"][task][r["algorithm"]][f"seed_{r['seed']}"]
     assert entry["absolute_metrics"]["relative_regret"] == [None]
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import strict_json_loads
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -185,13 +186,6 @@ def test_an_empty_matrix_copy_from_a_full_disk_does_not_lock_the_directory_for_e
     assert (out / "matrix.toml").read_text() == TINY
 
 
-def _strict_loads(text: str):
-    def refuse(token):
-        raise ValueError(f"not strict JSON: {token}")
-
-    return json.loads(text, parse_constant=refuse)
-
-
 @pytest.mark.parametrize("args", [
     ["solve", "fan_small", "--planner", "random", "--budget", "30", "--json"],
     ["solve", "fan_small", "--planner", "random", "--budget", "30", "--json", "--heldout-every", "2"],
@@ -202,7 +196,7 @@ def _strict_loads(text: str):
 ])
 def test_every_json_output_is_strict_json(args, capsys):
     assert main(args) in (0, 1)
-    _strict_loads(capsys.readouterr().out)
+    strict_json_loads(capsys.readouterr().out)
 
 
 def test_a_case_path_is_found_beside_the_matrix_and_checked_before_any_work(tmp_path, plate_toml, capsys,

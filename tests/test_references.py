@@ -129,6 +129,10 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert rows["honest"]["bound_objective_m"] == 0 and np.isnan(rows["honest"]["relative_regret_upper"])
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent
+    stale = dict(store.finished()["honest"], policy_objective_m=2 * np.mean(true), policy_relative_regret=0.5)
+    store.rewrite(stale)  # a policy's regret left behind while every other column is current
+    assert rescore(run, echo=lambda m: None) == 1
+    assert store.finished()["honest"]["policy_relative_regret"] == pytest.approx(1.0, rel=1e-12)
 
 
 def test_bound_to_the_end_proves_every_position(tiny, built, folder):

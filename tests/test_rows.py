@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import strict_json_loads
 
 from fixbench.bench.reporting.html_report import provenance_html
 from fixbench.bench.running.store import (
@@ -54,13 +55,6 @@ def _same(x, y) -> bool:
     return x == y or (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y))
 
 
-def _strict_loads(text: str):
-    def refuse(name):
-        raise ValueError(f"{name} is not JSON (RFC 8259)")
-
-    return json.loads(text, parse_constant=refuse)
-
-
 def _write_schema_2(store: Store, row: dict) -> None:
     """The row as the code before schema 3 wrote it: plain JSON values, a missing number as NaN."""
     old = json.loads(json.dumps(dict(row, schema=2), default=str))
@@ -76,7 +70,7 @@ def test_schema_3_round_trip(tmp_path):
     store = Store(tmp_path / "run")
     store.write(_row(), None, None)
     text = store.row_path("c0").read_text()
-    raw = _strict_loads(text)  # strict JSON: no NaN in the file
+    raw = strict_json_loads(text)  # strict JSON: no NaN in the file
     assert raw["schema"] == SCHEMA_VERSION == 3 and raw["relative_regret"] is None
     assert {k: raw[k] for k in JSON_COLUMNS} == VALUES  # plain JSON values in the file, not text
     assert raw[CHECKSUM] == row_checksum(raw)
@@ -124,7 +118,7 @@ def test_rewrite_upgrades_a_schema_1_row(tmp_path):
     _write_schema_1(store, _row())
     before = store.finished()["c0"]
     store.rewrite(dict(before, relative_regret=0.25))
-    raw = _strict_loads(store.row_path("c0").read_text())
+    raw = strict_json_loads(store.row_path("c0").read_text())
     assert raw["schema"] == 3 and raw[CHECKSUM] == row_checksum(raw)
     assert {k: raw[k] for k in JSON_COLUMNS} == VALUES
     after = store.finished()["c0"]

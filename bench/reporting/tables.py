@@ -84,7 +84,7 @@ def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
             "objective_um": (ok["objective_m"] * 1e6, np.mean),
             "iqm_um": (ok["objective_m"] * 1e6, iqm),
             "regret_pct": (ok["relative_regret"] * 100, np.mean),
-            "regret_upper_pct": (ok.get("relative_regret_upper", np.nan * ok["objective_m"]) * 100, np.mean),
+            "regret_upper_pct": (ok["relative_regret_upper"] * 100, np.mean),
             "samples_to_1pct": (ok["samples_to_1pct"], np.mean),
             "samples_to_5pct": (ok["samples_to_5pct"], np.mean),
             "success_5pct_pct": (ok["success_5pct"] * 100, np.mean),

@@ -487,15 +487,14 @@ def rescore(run_dir, echo=print) -> int:
         if not row.get("error") and row.get("per_task_m") and (ref := fresh.get(reference_of(row))) is not None:
             tp = Path(run_dir) / "traces" / f"{cid}.parquet"
             trace = pd.read_parquet(tp).to_numpy(float) if tp.exists() else np.empty((0, 4))
-            m = metrics(_Scored(row, trace), ref)
-        if any(m[k] != row.get(k) and not (m[k] != m[k] and row.get(k) != row.get(k)) for k in m
-               if k in REFERENCE_COLUMNS):
-            row.update({k: m[k] for k in REFERENCE_COLUMNS if k in m})
+            m = {k: v for k, v in metrics(_Scored(row, trace), ref).items() if k in REFERENCE_COLUMNS}
             policy = row.get("policy_objective_m")
             if isinstance(policy, (int, float)) and math.isfinite(policy):  # a learner's policy, scored beside it
-                row.update(policy_relative_regret=policy / m["reference_objective_m"] - 1)
-        elif row.get("schema") == SCHEMA_VERSION:
+                m["policy_relative_regret"] = policy / m["reference_objective_m"] - 1
+        changed = {k: v for k, v in m.items() if v != row.get(k) and not (v != v and row.get(k) != row.get(k))}
+        if not changed and row.get("schema") == SCHEMA_VERSION:
             continue
+        row.update(changed)
         store.rewrite(row)
         n += 1
     echo(f"{Path(run_dir).name}: {n} rows rescored against the shipped references")
