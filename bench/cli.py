@@ -645,10 +645,13 @@ def references_rescore(run_dir) -> None:
 @click.option("--agents", type=int, help="Number of agents (default: the case's).")
 @click.option("--time-limit", "time_limit", type=click.FloatRange(min=0, min_open=True), default=60.0,
               show_default=True, help="Seconds of branch-and-bound a position.")
+@click.option("--method", type=click.Choice(["branch-and-bound", "zones"]), default="branch-and-bound",
+              show_default=True, help="zones: one robot free, the others' zones clamped, every position at once "
+              "(docs/references.md#zone-bound).")
 @click.option("--tasks", help="Comma-separated positions (default: every one).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),
               help="References folder (default: the catalog's).")
-def references_bound(case, material, agents, time_limit, tasks, out) -> None:
+def references_bound(case, material, agents, time_limit, method, tasks, out) -> None:
     """Certified lower bounds on CASE's shipped reference, written into it (docs/references.md#lower-bounds)."""
     from fixbench.bench.running.references import bound
 
@@ -656,7 +659,8 @@ def references_bound(case, material, agents, time_limit, tasks, out) -> None:
         ids = None if tasks is None else [int(x) for x in tasks.split(",") if x.strip()]
     except ValueError:
         raise click.BadParameter(f"not a comma-separated list of positions: {tasks!r}", param_hint="--tasks") from None
-    res = bound(case, material, agents, time_limit, ids, folder=out, echo=lambda m: click.echo(m, err=True))
+    res = bound(case, material, agents, time_limit, ids, folder=out, echo=lambda m: click.echo(m, err=True),
+                method=method)
     gaps = sorted(r["gap"] for r in res["positions"])
     click.echo(f"wrote {res['path']}: {len(gaps)} positions, gap (reference - bound) / reference: median "
                f"{100 * gaps[len(gaps) // 2]:.1f} %, worst {100 * gaps[-1]:.1f} %")

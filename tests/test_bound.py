@@ -10,6 +10,7 @@ from fixbench.cases.problem import decode_layouts, load_problem
 from fixbench.cases.spec import case_names, load_case_spec
 from fixbench.solvers import get
 from fixbench.solvers.bound import BoundConfig, ComplianceBound, lower_bound
+from fixbench.solvers.zone_bound import ZoneBound, ZoneConfig
 
 POINTS = ("points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]",
           "points_mm = [[100, 50], [100, 150], [150, 100], [200, 50], [200, 150], [250, 100], "
@@ -93,3 +94,39 @@ def test_small_cases_bound_at_most_exacts_optimum(case):
 def test_config_is_checked(bad):
     with pytest.raises(ValueError, match="BoundConfig"):
         BoundConfig(**bad)
+
+
+def test_every_zone_node_bound_is_at_most_every_completion(tiny):
+    zones = ZoneBound(tiny)
+    tasks = np.arange(tiny.n_tasks)
+    positive = 0
+    for k in range(tiny.n_agents):
+        nodes = zones.node_bounds(k, tasks)  # (actions of robot k, tasks)
+        assert nodes.shape == (len(tiny.action_sets[k]), tiny.n_tasks)
+        for task in tasks:
+            layouts, u = values(tiny, task)
+            for i, act in enumerate(tiny.action_sets[k]):
+                below = layouts[:, k] == act
+                assert 0 <= nodes[i, task] <= u[below].min(), (k, act, task)
+        positive += (nodes > 0).sum()
+    assert positive > 0
+    best = np.array([values(tiny, t)[1].min() for t in tasks])
+    assert np.all(zones.bounds() <= best) and zones.bounds().max() > 0
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c for c in SMALL])
+def test_small_cases_zone_bound_at_most_exacts_optimum(case):
+    """At every case's own robots (the zones are what the robots' sets make them)."""
+    problem = load_problem(case)
+    exact = get("exact")().solve(problem, budget=problem.joint_size * problem.n_tasks)
+    assert exact.info["proven"]
+    zb = ZoneBound(problem).bounds()
+    assert np.all(zb >= 0) and np.all(zb <= exact.max_deformation)
+    assert zb.max() > 0.02 * exact.max_deformation.max()  # it bites somewhere
+
+
+@pytest.mark.parametrize("bad", [dict(safety=1), dict(pivot=0), dict(scale_points=0), dict(task_chunk=0),
+                                 dict(scale_span=0.5)])
+def test_zone_config_is_checked(bad):
+    with pytest.raises(ValueError, match="ZoneConfig"):
+        ZoneConfig(**bad)
