@@ -10,12 +10,17 @@ free plate (K_S <= K^-1 for every S, so r . K_S r <= r . K^-1 r):
 
     m(S) >= max over s of (c_R - rho_0(s) sqrt(c_R)) / (s A),   rho_0(s)^2 = (f - s P^T a) . K^-1 (f - s P^T a).
 
-The task's bound is the largest over the robots of the least over that robot's actions. It is what
+The task's one-robot bound is the largest over the robots of the least over that robot's actions.
+With two neighbouring robots k and j free (the other zones clamped) a node holds fewer constraints than
+k's one-robot node, so its bound is at least that node's: the least over the pair nodes is searched k's
+actions least one-robot bound first, stopping where that bound reaches the least pair bound found
+(:meth:`ZoneBound.pair_bounds`). The task's bound is the largest of all of these. It is what
 :class:`~fixbench.solvers.bound.ComplianceBound` cannot give on the full parts: there the held blocks of
 thousands of overlapping pads are not numerically positive definite, while clamped DOFs are always
 well posed (a direct sparse factorisation of the remaining stiffness). Its cost is one factorisation
 and one back-solve per constraint row of robot k's candidates, per robot and field, then a few small
-dense solves per (action, task): the whole wing panel (500 positions) in one to two minutes of CPU.
+dense solves per (action, task) and per expansion of a pair; docs/references.md#zone-bound has the
+measured cost and gaps.
 
 Written by hand: no library bounds this combinatorial problem; the linear algebra is SciPy's.
 Floating point: each bound is multiplied by (1 - ``safety``); an action whose held block is not
@@ -52,13 +57,26 @@ class ZoneConfig:
     task_chunk: int = 100
     """Tasks solved together (memory: DOFs x chunk doubles per field)."""
 
+    pairs: bool = True
+    """Also free two neighbouring robots at once (the others' zones clamped): tighter, about 2-3 x the time."""
+
+    neighbour_factor: float = 1.5
+    """Robots are neighbours when some candidates of each lie within this many times the median
+    spacing of the candidates (their nearest-neighbour distance)."""
+
+    expand_max: int = 32
+    """A pair node expands at most this many of the first robot's actions a task (least bound first);
+    the next one's one-robot bound covers the rest."""
+
     def __post_init__(self) -> None:
         if not 0 <= self.safety < 1:
             raise ValueError(f"ZoneConfig.safety must be in [0, 1), got {self.safety}")
         if not 0 < self.pivot < 1:
             raise ValueError(f"ZoneConfig.pivot must be in (0, 1), got {self.pivot}")
-        if self.scale_points < 1 or self.task_chunk < 1:
-            raise ValueError("ZoneConfig.scale_points and task_chunk must be at least 1")
+        if self.scale_points < 1 or self.task_chunk < 1 or self.expand_max < 1:
+            raise ValueError("ZoneConfig.scale_points, task_chunk and expand_max must be at least 1")
+        if not self.neighbour_factor > 0:
+            raise ValueError(f"ZoneConfig.neighbour_factor must be positive, got {self.neighbour_factor}")
         if not self.scale_span >= 1:
             raise ValueError(f"ZoneConfig.scale_span must be at least 1, got {self.scale_span}")
 
@@ -94,12 +112,13 @@ class ZoneBound:
         self.c0, self.fa, self.aa = c0, fa, aa  # rho_0(s)^2 = c0 - 2 s fa + s^2 aa, per task
         self.A = np.sqrt(comp).sum(axis=0)
 
-    def _held(self, k: int):
-        """Per field: the clamped system of robot k's zone node (factorisation, kept DOFs) and the
-        constraint rows of k's candidates on the kept DOFs, with their coupling block."""
+    def _held(self, free: tuple[int, ...]):
+        """Per field: the clamped system of a zone node with the robots ``free`` (factorisation, kept
+        DOFs) and the constraint rows of their candidates (in that order) on the kept DOFs, with their
+        coupling block."""
         p, model = self.problem, self.problem.model
-        mine = p.candidate_sets[k]
-        others = np.unique(np.concatenate([s for j, s in enumerate(p.candidate_sets) if j != k] or [[]]))
+        mine = np.concatenate([p.candidate_sets[k] for k in free])
+        others = np.unique(np.concatenate([s for j, s in enumerate(p.candidate_sets) if j not in free] or [[]]))
         out = []
         for n in self.fields:
             fs = model.fields[n]
@@ -120,24 +139,21 @@ class ZoneBound:
             out.append((n, keep, lu, Bk, per, 0.5 * (C + C.T)))
         return out
 
-    def node_bounds(self, k: int, tasks=None) -> np.ndarray:
-        """(actions of robot k, tasks) certified lower bounds on max |u| of every layout that gives
-        robot k that action (in the order of ``problem.action_sets[k]``)."""
-        p, cfg = self.problem, self.config
-        tasks = np.arange(p.n_tasks) if tasks is None else np.asarray(tasks, dtype=np.int64)
-        local = {int(c): i for i, c in enumerate(p.candidate_sets[k])}
-        opts = p.options[p.action_sets[k]]  # (actions, pads a robot places), -1 for none
-        c_R = np.zeros((len(opts), len(tasks)))
-        for n, keep, lu, Bk, per, C in self._held(k):
-            solver = _ActionSolver(opts, local, per, C, cfg.pivot)
-            for lo in range(0, len(tasks), cfg.task_chunk):
-                t = tasks[lo:lo + cfg.task_chunk]
+    def _solved(self, held, tasks: np.ndarray):
+        """Per chunk of tasks: (the chunk's slice, per field (clamped compliance, pad rows' d = B u))."""
+        for lo in range(0, len(tasks), self.config.task_chunk):
+            t = tasks[lo:lo + self.config.task_chunk]
+            fields = []
+            for n, keep, lu, Bk, per, _ in held:
                 f = self.F[n][keep][:, t]
                 u = lu.solve(f)
-                c_clamp = np.einsum("it,it->t", f, u)
-                c_R[:, lo:lo + len(t)] += c_clamp[None, :] - solver.reduction(Bk @ u if per else None, len(t))
-        c_R[~np.isfinite(c_R)] = 0.0
-        c_R = np.maximum(c_R, 0.0)
+                fields.append((np.einsum("it,it->t", f, u), Bk @ u if per else None))
+            yield slice(lo, lo + len(t)), fields
+
+    def _averaged(self, c_R: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+        """The averaged bound of compliances ``c_R`` (..., tasks), best s on the grid, less the safety."""
+        cfg = self.config
+        c_R = np.maximum(np.where(np.isfinite(c_R), c_R, 0.0), 0.0)
         s_star = np.where((self.aa[tasks] > 0) & (self.fa[tasks] > 0),
                           self.fa[tasks] / np.where(self.aa[tasks] > 0, self.aa[tasks], 1.0), 1.0)
         best = np.zeros_like(c_R)
@@ -147,16 +163,98 @@ class ZoneBound:
             with np.errstate(invalid="ignore", divide="ignore"):
                 val = (c_R - rho * np.sqrt(c_R)) / (s * self.A[tasks])
             best = np.maximum(best, np.nan_to_num(val, nan=0.0, posinf=0.0, neginf=0.0))
-        best[:, ~(self.A[tasks] > 0)] = 0.0
+        best[..., ~(self.A[tasks] > 0)] = 0.0
         return best * (1 - cfg.safety)
+
+    def node_bounds(self, k: int, tasks=None) -> np.ndarray:
+        """(actions of robot k, tasks) certified lower bounds on max |u| of every layout that gives
+        robot k that action (in the order of ``problem.action_sets[k]``)."""
+        p = self.problem
+        tasks = np.arange(p.n_tasks) if tasks is None else np.asarray(tasks, dtype=np.int64)
+        local = {int(c): i for i, c in enumerate(p.candidate_sets[k])}
+        opts = p.options[p.action_sets[k]]  # (actions, pads a robot places), -1 for none
+        held = self._held((k,))
+        solvers = [_ActionSolver(opts, local, per, C, self.config.pivot) for *_, per, C in held]
+        c_R = np.zeros((len(opts), len(tasks)))
+        for cols, fields in self._solved(held, tasks):
+            for solver, (c_clamp, d) in zip(solvers, fields):
+                c_R[:, cols] += c_clamp[None, :] - solver.reduction(d, cols.stop - cols.start)
+        return self._averaged(c_R, tasks)
+
+    def neighbours(self) -> list[tuple[int, int]]:
+        """Pairs of robots (k < j) with candidates within ``neighbour_factor`` x the median spacing."""
+        from scipy.spatial import cKDTree
+
+        p = self.problem
+        xy = p.candidates
+        if len(xy) < 2:
+            return []
+        spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
+        reach = self.config.neighbour_factor * spacing
+        trees = [cKDTree(xy[s]) for s in p.candidate_sets]
+        return [(k, j) for k in range(p.n_agents) for j in range(k + 1, p.n_agents)
+                if trees[k].sparse_distance_matrix(trees[j], reach).nnz > 0
+                or np.isclose(trees[k].query(xy[p.candidate_sets[j]], k=1)[0].min(), 0.0)]
+
+    def pair_bounds(self, k: int, j: int, tasks, first_k: np.ndarray, first_j: np.ndarray) -> np.ndarray:
+        """(tasks,) certified bounds with robots k and j free and every other zone clamped. For each task
+        and each order (a, b) of the two: the least over a's actions of the least over b's actions, a's
+        actions taken least one-robot bound (``first_a``: node_bounds(a), actions x tasks) first and
+        stopped where that bound reaches the least found (it is below every pair node under that action:
+        more DOFs clamped); the larger of the two orders."""
+        p, cfg = self.problem, self.config
+        tasks = np.asarray(tasks, dtype=np.int64)
+        held = self._held((k, j))
+        nk = len(p.candidate_sets[k])
+        local = ({int(c): i for i, c in enumerate(p.candidate_sets[k])},
+                 {int(c): nk + i for i, c in enumerate(p.candidate_sets[j])})
+        opts = (p.options[p.action_sets[k]], p.options[p.action_sets[j]])
+        orders = [(first_k, [_PairSolver(opts[0], opts[1], local[0], local[1], per, C, cfg.pivot)
+                             for *_, per, C in held]),
+                  (first_j, [_PairSolver(opts[1], opts[0], local[1], local[0], per, C, cfg.pivot)
+                             for *_, per, C in held])]
+        out = np.zeros(len(tasks))
+        for cols, fields in self._solved(held, tasks):
+            for i in range(cols.start, cols.stop):
+                col = i - cols.start
+                for first, solvers in orders:
+                    least = np.inf
+                    for n_done, o in enumerate(np.argsort(first[:, i], kind="stable")):
+                        if first[o, i] >= least:
+                            break
+                        if n_done == cfg.expand_max:
+                            least = first[o, i]
+                            break
+                        least = min(least, float(self._pair_row(solvers, fields, o, col, tasks[i]).min()))
+                    out[i] = max(out[i], least if np.isfinite(least) else 0.0)
+        return out
+
+    def _pair_row(self, solvers, fields, o: int, col: int, task: int) -> np.ndarray:
+        """Bounds of the pair nodes (o, each action of the second robot) on one task (column ``col``)."""
+        c_R = sum(c[col] - s.reduction(o, None if d is None else d[:, col]) for s, (c, d) in zip(solvers, fields))
+        return self._averaged(c_R[:, None], np.array([task]))[:, 0]
+
+    def pair_nodes(self, k: int, j: int, task: int) -> np.ndarray:
+        """(actions of k, actions of j) the bound of every pair node of one task (for checks: the search
+        above computes only the rows it needs)."""
+        p, cfg = self.problem, self.config
+        held = self._held((k, j))
+        nk = len(p.candidate_sets[k])
+        local_k = {int(c): i for i, c in enumerate(p.candidate_sets[k])}
+        local_j = {int(c): nk + i for i, c in enumerate(p.candidate_sets[j])}
+        solvers = [_PairSolver(p.options[p.action_sets[k]], p.options[p.action_sets[j]], local_k, local_j, per, C,
+                               cfg.pivot) for *_, per, C in held]
+        _, fields = next(self._solved(held, np.array([task])))
+        return np.array([self._pair_row(solvers, fields, o, 0, task) for o in range(len(p.action_sets[k]))])
 
     def bounds(self, tasks=None) -> np.ndarray:
         """(tasks,) the zone bound of each task: the largest over the robots of the least over that
-        robot's actions."""
+        robot's actions and, with ``pairs``, over the ordered neighbour pairs of their pair bounds."""
         tasks = np.arange(self.problem.n_tasks) if tasks is None else np.asarray(tasks, dtype=np.int64)
-        out = np.zeros(len(tasks))
-        for k in range(self.problem.n_agents):
-            out = np.maximum(out, self.node_bounds(k, tasks).min(axis=0))
+        first = [self.node_bounds(k, tasks) for k in range(self.problem.n_agents)]
+        out = np.max([b.min(axis=0) for b in first], axis=0)
+        for k, j in self.neighbours() if self.config.pairs else []:
+            out = np.maximum(out, self.pair_bounds(k, j, tasks, first[k], first[j]))
         return out
 
 
@@ -197,6 +295,64 @@ class _ActionSolver:
             z = np.linalg.solve(L[ok], d[rows[ok]])  # L z = d: z . z = d C^-1 d
             out[idx[ok]] = (z * z).sum(axis=1)
             out[idx[~ok]] = np.inf
+        return out
+
+
+class _PairSolver:
+    """The compliance reduction of one action o of a first robot together with each action of a second
+    (their pads' rows), by block elimination: with L L^T = C_oo, z = L^-1 d_o and W = L^-1 C_o,b,
+    d C^-1 d = z . z + e . S^-1 e, S = C_bb - W^T W, e = d_b - W^T z. A block that fails the pivot
+    test reduces by +inf (bound 0)."""
+
+    def __init__(self, opts_a, opts_b, local_a, local_b, per: int, C: np.ndarray, pivot: float):
+        self.per, self.C, self.pivot = per, C, pivot
+        self.scale = float(np.abs(np.diag(C)).max()) if len(C) else 1.0
+        self.rows_a = [self._rows(o, local_a) for o in opts_a]
+        self.n_b = len(opts_b)
+        self.groups = []  # the second robot's actions by pad count: (indices, rows, C_bb blocks)
+        placed = (opts_b >= 0).sum(axis=1)
+        for m in np.unique(placed):
+            idx = np.flatnonzero(placed == m)
+            rows = np.array([self._rows(o, local_b) for o in opts_b[idx]]).reshape(len(idx), -1)
+            block = C[rows[:, :, None], rows[:, None, :]] if rows.shape[1] and per else None
+            if block is not None:  # rows wholly on clamped DOFs: d = 0 and C = 0 there; make them inert
+                zero = np.abs(np.einsum("aii->ai", block)) <= 0
+                block = block + np.einsum("ai,ij->aij", zero.astype(float), np.eye(rows.shape[1])) * self.scale
+            self.groups.append((idx, rows, block))
+
+    def _rows(self, opt, local) -> np.ndarray:
+        pads = np.array([local[int(c)] for c in opt if c >= 0], dtype=np.int64)
+        return (pads[:, None] * self.per + np.arange(self.per)).ravel() if self.per else pads[:0]
+
+    def reduction(self, o: int, d: np.ndarray | None) -> np.ndarray:
+        """(actions of the second robot,) d C^-1 d of action ``o`` with each; d: the rows' values (one task)."""
+        out = np.zeros(self.n_b)
+        if d is None or self.per == 0:
+            return out
+        ra = self.rows_a[o]
+        Ca = self.C[np.ix_(ra, ra)]
+        Ca = Ca + np.diag((np.abs(np.diag(Ca)) <= 0) * self.scale)
+        try:
+            L = np.linalg.cholesky(Ca) if len(ra) else np.zeros((0, 0))
+        except np.linalg.LinAlgError:
+            return np.full(self.n_b, np.inf)
+        if len(ra) and np.diag(L).min() ** 2 <= self.pivot * self.scale:
+            return np.full(self.n_b, np.inf)
+        z = np.linalg.solve(L, d[ra]) if len(ra) else np.zeros(0)
+        for idx, rows, block in self.groups:
+            if block is None:
+                out[idx] = z @ z
+                continue
+            W = np.linalg.solve(L, self.C[ra][:, rows].reshape(len(ra), -1)).reshape(len(ra), *rows.shape) \
+                if len(ra) else np.zeros((0, *rows.shape))
+            S = block - np.einsum("pai,paj->aij", W, W)
+            e = d[rows] - np.einsum("pai,p->ai", W, z)
+            lam = np.linalg.eigvalsh(S)
+            ok = lam.min(axis=1) > self.pivot * self.scale
+            red = np.full(len(idx), np.inf)
+            if ok.any():
+                red[ok] = z @ z + np.einsum("ai,ai->a", e[ok], np.linalg.solve(S[ok], e[ok][..., None])[..., 0])
+            out[idx] = red
         return out
 
 

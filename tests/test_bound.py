@@ -126,7 +126,30 @@ def test_small_cases_zone_bound_at_most_exacts_optimum(case):
 
 
 @pytest.mark.parametrize("bad", [dict(safety=1), dict(pivot=0), dict(scale_points=0), dict(task_chunk=0),
+                                 dict(expand_max=0), dict(neighbour_factor=0),
                                  dict(scale_span=0.5)])
 def test_zone_config_is_checked(bad):
     with pytest.raises(ValueError, match="ZoneConfig"):
         ZoneConfig(**bad)
+
+
+def test_every_zone_pair_node_bound_is_at_most_every_completion(tiny):
+    zones = ZoneBound(tiny)
+    positive = 0
+    for task in range(tiny.n_tasks):
+        layouts, u = values(tiny, task)
+        for k in range(tiny.n_agents):
+            for j in range(tiny.n_agents):
+                if j == k:
+                    continue
+                nodes = zones.pair_nodes(k, j, task)
+                for a, act_k in enumerate(tiny.action_sets[k]):
+                    for b, act_j in enumerate(tiny.action_sets[j]):
+                        below = (layouts[:, k] == act_k) & (layouts[:, j] == act_j)
+                        assert 0 <= nodes[a, b] <= u[below].min(), (task, k, j, act_k, act_j)
+                positive += (nodes > 0).sum()
+                # a pair node clamps fewer DOFs than the one-robot node above it
+                assert np.all(nodes.min(axis=1) >= zones.node_bounds(k, [task])[:, 0] * (1 - 1e-9))
+    assert positive > 0
+    plain = ZoneBound(tiny, ZoneConfig(pairs=False)).bounds()
+    assert np.all(zones.bounds() >= plain)
