@@ -58,11 +58,8 @@ class ZoneConfig:
     """Tasks solved together (memory: DOFs x chunk doubles per field)."""
 
     pairs: bool = True
-    """Also free two neighbouring robots at once (the others' zones clamped): tighter, about 2-3 x the time."""
-
-    neighbour_factor: float = 1.5
-    """Robots are neighbours when some candidates of each lie within this many times the median
-    spacing of the candidates (their nearest-neighbour distance)."""
+    """Also free two neighbouring robots at once (the others' zones clamped; :meth:`ZoneBound.neighbours`):
+    tighter, about 2-3 x the time."""
 
     expand_max: int = 32
     """A pair node expands at most this many of the first robot's actions a task (least bound first);
@@ -75,8 +72,6 @@ class ZoneConfig:
             raise ValueError(f"ZoneConfig.pivot must be in (0, 1), got {self.pivot}")
         if self.scale_points < 1 or self.task_chunk < 1 or self.expand_max < 1:
             raise ValueError("ZoneConfig.scale_points, task_chunk and expand_max must be at least 1")
-        if not self.neighbour_factor > 0:
-            raise ValueError(f"ZoneConfig.neighbour_factor must be positive, got {self.neighbour_factor}")
         if not self.scale_span >= 1:
             raise ValueError(f"ZoneConfig.scale_span must be at least 1, got {self.scale_span}")
 
@@ -182,19 +177,21 @@ class ZoneBound:
         return self._averaged(c_R, tasks)
 
     def neighbours(self) -> list[tuple[int, int]]:
-        """Pairs of robots (k < j) with candidates within ``neighbour_factor`` x the median spacing."""
+        """Pairs of robots (k < j) whose zones touch: j holds the nearest other-zone candidate of some
+        candidate of k (or k of j). No length scale is assumed (grids may be far from square)."""
         from scipy.spatial import cKDTree
 
         p = self.problem
-        xy = p.candidates
-        if len(xy) < 2:
-            return []
-        spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
-        reach = self.config.neighbour_factor * spacing
-        trees = [cKDTree(xy[s]) for s in p.candidate_sets]
-        return [(k, j) for k in range(p.n_agents) for j in range(k + 1, p.n_agents)
-                if trees[k].sparse_distance_matrix(trees[j], reach).nnz > 0
-                or np.isclose(trees[k].query(xy[p.candidate_sets[j]], k=1)[0].min(), 0.0)]
+        sets = p.candidate_sets
+        trees = [cKDTree(p.candidates[s]) if len(s) else None for s in sets]
+        pairs = set()
+        for k, s in enumerate(sets):
+            others = [j for j in range(p.n_agents) if j != k and trees[j] is not None]
+            if not len(s) or not others:
+                continue
+            dist = np.column_stack([trees[j].query(p.candidates[s])[0] for j in others])
+            pairs |= {tuple(sorted((k, others[i]))) for i in np.unique(dist.argmin(axis=1))}
+        return sorted(pairs)
 
     def pair_bounds(self, k: int, j: int, tasks, first_k: np.ndarray, first_j: np.ndarray) -> np.ndarray:
         """(tasks,) certified bounds with robots k and j free and every other zone clamped. For each task

@@ -126,7 +126,7 @@ def test_small_cases_zone_bound_at_most_exacts_optimum(case):
 
 
 @pytest.mark.parametrize("bad", [dict(safety=1), dict(pivot=0), dict(scale_points=0), dict(task_chunk=0),
-                                 dict(expand_max=0), dict(neighbour_factor=0),
+                                 dict(expand_max=0),
                                  dict(scale_span=0.5)])
 def test_zone_config_is_checked(bad):
     with pytest.raises(ValueError, match="ZoneConfig"):
