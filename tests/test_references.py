@@ -99,7 +99,9 @@ def test_harness_uses_the_shipped_reference_where_exact_refuses(built, folder, m
 def test_update_merges_only_verified_improvements_and_rescores(tiny, built, folder, tmp_path):
     worse = json.loads(json.dumps(built))
     bad = [int(a[-1]) for a in tiny.action_sets]
-    worse["tasks"][1].update(layout=bad, max_deformation_m=float(tiny.oracle.evaluate(1, [bad])[0, 3]))
+    lower = 0.5 * built["tasks"][1]["max_deformation_m"]  # a certified bound on the optimum: it must stay
+    worse["tasks"][1].update(layout=bad, max_deformation_m=float(tiny.oracle.evaluate(1, [bad])[0, 3]),
+                             lower_bound_m=lower)
     refs.write_reference(worse)
     run = tmp_path / "run"
     store = Store(run)
@@ -119,6 +121,7 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     assert list(changed.values()) == [1]
     now = refs.load_reference("fan_small", built["material"], 2)
     assert now["tasks"][1]["layout"] == good[1] and now["tasks"][0] == built["tasks"][0]
+    assert now["tasks"][1]["lower_bound_m"] == lower and now["tasks"][1]["status"] == "best-known"
     assert now["tasks"][2:] == built["tasks"][2:]
     assert now["provenance"][-1]["action"] == "update"
     rows = store.finished()
@@ -126,7 +129,7 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     raw = json.loads(store.row_path("honest").read_text())  # written by hand as schema 1: rewritten as 3
     assert raw["schema"] == 3 and raw["layouts"] == good and rows["honest"]["per_task_m"] == true
     assert rows["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)  # rescored
-    assert rows["honest"]["bound_objective_m"] == 0 and np.isnan(rows["honest"]["relative_regret_upper"])
+    assert rows["honest"]["bound_objective_m"] == pytest.approx(lower / 6, rel=1e-12)  # the one bound, of 6
     assert rows["liar"]["relative_regret"] < 0  # a lying row is not trusted, and stays visible
     assert rescore(run, echo=lambda m: None) == 0  # idempotent
     stale = dict(store.finished()["honest"], policy_objective_m=2 * np.mean(true), policy_relative_regret=0.5)
@@ -162,6 +165,23 @@ def test_a_bound_stopped_early_stays_below_and_is_kept_per_position(built, folde
     rec = new["tasks"][2]
     assert 0 <= rec["lower_bound_m"] <= rec["max_deformation_m"]  # the root's bound: certified, not closed
     assert [t["lower_bound_m"] for i, t in enumerate(new["tasks"]) if i != 2] == [None] * 5
+
+
+def test_zone_bounds_from_the_command_line_are_certified_and_kept(tiny, built, folder):
+    """`--method zones`: every position gets a bound at most exact's optimum, positive somewhere; the
+    method is recorded; a later, smaller bound (the root of a branch-and-bound stopped at once) keeps it."""
+    from fixbench.bench.cli import main
+
+    refs.write_reference(built)
+    assert main(["references", "bound", "fan_small", "--agents", "2", "--method", "zones"]) == 0
+    opt = get("exact")().solve(tiny, None).max_deformation
+    new = refs.load_reference("fan_small", built["material"], 2)
+    zb = np.array([t["lower_bound_m"] for t in new["tasks"]])
+    assert np.all(zb >= 0) and np.all(zb <= opt) and zb.max() > 0
+    assert "zone bound" in new["provenance"][-1]["method"] and new["provenance"][-1]["settings"]["safety"] == 1e-6
+    bound("fan_small", None, 2, time_limit_s=1e-9, echo=lambda m: None)
+    again = np.array([t["lower_bound_m"] for t in refs.load_reference("fan_small", built["material"], 2)["tasks"]])
+    assert np.all(again >= zb)
 
 
 def test_a_bound_above_the_reference_is_refused(built, folder, capsys):
@@ -216,3 +236,18 @@ def test_check_small_counts_tasks_at_the_optimum():
     assert len(rows) == 1 and rows[0]["tasks"] == 6
     assert 0 <= rows[0]["reached"] <= 6 and rows[0]["worst_gap_pct"] >= -1e-7
     assert (rows[0]["reached"] == 6) == (rows[0]["worst_gap_pct"] <= 1e-7)
+
+
+def test_every_shipped_reference_carries_a_certified_bound_on_every_position():
+    """docs/references.md#zone-bound: each shipped position has a lower bound (proven ones their optimum),
+    the method that made it is recorded, and the bounds say something on every shipped part."""
+    files = sorted(refs.REFERENCE_DIR.glob("*.json"))
+    assert files
+    for path in files:
+        ref = json.loads(path.read_text(encoding="utf-8"))
+        bounds = [t["lower_bound_m"] for t in ref["tasks"]]
+        assert None not in bounds, path.name
+        assert all(0 <= b <= t["max_deformation_m"] for b, t in zip(bounds, ref["tasks"])), path.name
+        methods = {p["method"].split(" (")[0] for p in ref["provenance"] if p["action"] == "bound"}
+        assert methods & {"zone bound", "compliance branch-and-bound"}, path.name
+        assert sum(b > 0 for b in bounds) >= len(bounds) / 2, path.name

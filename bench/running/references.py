@@ -413,8 +413,9 @@ def update(run_dir, echo=print, folder=None) -> dict:
             for _, lay, row in sorted(options, key=lambda o: o[0]):
                 u = float(p.measure(t, p.check_layouts([lay]))[0, 3])
                 if u < ref["tasks"][t]["max_deformation_m"] * (1 - 1e-9):
-                    ref["tasks"][t] = {"layout": [int(x) for x in lay], "max_deformation_m": u,
-                                       "status": "best-known", "lower_bound_m": None}
+                    bound = ref["tasks"][t].get("lower_bound_m")  # a bound on the optimum: it stays
+                    ref["tasks"][t] = {"layout": [int(x) for x in lay], "max_deformation_m": u, "status": "best-known",
+                                       "lower_bound_m": None if bound is None else min(bound, u)}
                     replaced.append({"task": t, "planner": row["planner"], "cell": row["cell"]})
                     break
         if replaced:
