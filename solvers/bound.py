@@ -90,6 +90,26 @@ class BoundResult:
         return (self.best - self.bound) / self.best if self.best > 0 else 0.0
 
 
+def point_compliance(model, name: str) -> np.ndarray:
+    """P K^-1 P^T of one field of the free plate: the measurement rows' mutual compliance (symmetrised)."""
+    P = model.measure_matrix(name)
+    W = P @ model.fields[name].lu.solve(P.T.toarray())
+    return 0.5 * (W + W.T)
+
+
+def point_forces(W: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """The point forces a with P K^-1 P^T a = m (m: the free plate's field at the measurement rows; a
+    column per task where m has them)."""
+    return np.linalg.lstsq(W, m, rcond=1e-12)[0]
+
+
+def force_total(forces: list[np.ndarray], n_meas: int) -> np.ndarray:
+    """A = sum over the points of |a_p| (the components of every field together): a number, or one per
+    task where each field's forces have a column per task."""
+    comp = sum((a.reshape(-1, n_meas, *a.shape[1:]) ** 2).sum(axis=0) for a in forces)
+    return np.sqrt(comp).sum(axis=0)
+
+
 class _Field:
     """One field's oracle data and the task-independent products the bound needs."""
 
@@ -99,9 +119,7 @@ class _Field:
         self.per, self.C, self.H, self.d0, self.m0 = fo.per, fo.C, fo.H, fo.d0, fo.m0
         F = problem.model.load_matrix(name)
         self.c0 = np.einsum("it,it->t", F, fs.lu.solve(F))  # free compliance f . K^-1 f of each task
-        P = problem.model.measure_matrix(name)
-        W = P @ fs.lu.solve(P.T.toarray())  # P K^-1 P^T: the points' mutual compliance
-        self.W = 0.5 * (W + W.T)
+        self.W = point_compliance(problem.model, name)
         n = problem.oracle.n_meas
         self.W_pp = np.diag(self.W).copy()  # each measurement row's own compliance
         self.W_xy = np.diag(self.W[:n, n:]).copy() if name == "membrane" else None  # ux-uy at a point
@@ -156,11 +174,8 @@ class ComplianceBound:
         """The point forces a of ``task`` (per field: P K^-1 P^T a = P u0) and A = sum_p |a_p|."""
         if self._task == task:
             return
-        self.a = [np.linalg.lstsq(f.W, f.m0[task], rcond=1e-12)[0] for f in self.fields]
-        comp = np.zeros(self.n_meas)
-        for a in self.a:
-            comp += (a.reshape(-1, self.n_meas) ** 2).sum(axis=0)  # |a_p|^2 over the components
-        self.A = float(np.sqrt(comp).sum())
+        self.a = [point_forces(f.W, f.m0[task]) for f in self.fields]
+        self.A = float(force_total(self.a, self.n_meas))
         self._task = task
 
     def pads(self, fixed: dict[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -280,4 +295,5 @@ def lower_bound(problem: Problem, task: int, config: BoundConfig = BoundConfig()
                        leaves, time.perf_counter() - start)
 
 
-__all__ = ["BoundConfig", "BoundResult", "ComplianceBound", "lower_bound"]
+__all__ = ["BoundConfig", "BoundResult", "ComplianceBound", "force_total", "lower_bound", "point_compliance",
+           "point_forces"]

@@ -36,6 +36,7 @@ import scipy.sparse as sp
 
 from fixbench.cases.fem import ScaledLU
 from fixbench.cases.problem import Problem
+from fixbench.solvers.bound import force_total, point_compliance, point_forces
 
 
 @dataclass(frozen=True)
@@ -89,23 +90,19 @@ class ZoneBound:
         self.problem, self.config = problem, config
         model = problem.model
         self.fields = model.active
-        tasks = range(problem.n_tasks)
         self.F = {n: model.load_matrix(n) for n in self.fields}  # (free DOFs, tasks)
-        n_meas = len(model.measure_points)
-        c0, fa, aa, comp = 0.0, 0.0, 0.0, np.zeros((n_meas, len(tasks)))
-        for n in self.fields:  # the point forces a of every task, as ComplianceBound._weights
-            fs, P = model.fields[n], model.measure_matrix(n)
-            W = P @ fs.lu.solve(P.T.toarray())
-            W = 0.5 * (W + W.T)
-            U0 = fs.lu.solve(self.F[n])
-            m0 = P @ U0
-            a = np.linalg.lstsq(W, m0, rcond=1e-12)[0]
+        c0, fa, aa, forces = 0.0, 0.0, 0.0, []
+        for n in self.fields:  # the point forces a of every task (a column each), as ComplianceBound's
+            W = point_compliance(model, n)
+            U0 = model.fields[n].lu.solve(self.F[n])
+            m0 = model.measure_matrix(n) @ U0
+            a = point_forces(W, m0)
             c0 = c0 + np.einsum("it,it->t", self.F[n], U0)
             fa = fa + np.einsum("pt,pt->t", a, m0)
             aa = aa + np.einsum("pt,pq,qt->t", a, W, a)
-            comp += (a.reshape(-1, n_meas, len(tasks)) ** 2).sum(axis=0)
+            forces.append(a)
         self.c0, self.fa, self.aa = c0, fa, aa  # rho_0(s)^2 = c0 - 2 s fa + s^2 aa, per task
-        self.A = np.sqrt(comp).sum(axis=0)
+        self.A = force_total(forces, len(model.measure_points))
 
     def _held(self, free: tuple[int, ...]):
         """Per field: the clamped system of a zone node with the robots ``free`` (factorisation, kept
