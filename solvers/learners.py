@@ -208,7 +208,11 @@ class Replay:
         self.added += 1
 
     def add_many(self, tasks: np.ndarray, acts: np.ndarray, values: np.ndarray) -> None:
-        """:meth:`add` for each row of a batched step, in order."""
+        """:meth:`add` for each row of a batched step, in order (of more rows than the capacity, the last
+        ``cap`` are kept, as one by one: a repeated index in one assignment would leave the order to torch)."""
+        skip = max(len(tasks) - self.cap, 0)
+        self.added += skip
+        tasks, acts, values = tasks[skip:], acts[skip:], values[skip:]
         k = (self.added + np.arange(len(tasks))) % self.cap
         self.task[k] = torch.as_tensor(tasks, dtype=torch.long)
         self.act[k] = torch.as_tensor(acts, dtype=torch.long)

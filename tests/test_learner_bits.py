@@ -137,6 +137,12 @@ def test_replay_is_a_ring_of_its_capacity():
     many.add_many(np.arange(2), np.array([[0, 10], [1, 11]]), np.arange(2.0))
     many.add_many(np.arange(2, 5), np.array([[2, 12], [3, 13], [4, 14]]), np.arange(2.0, 5.0))
     assert len(many) == 3 and all(torch.equal(getattr(many, k), getattr(replay, k)) for k in ("task", "act", "value"))
+    one, once = Replay(capacity=3, steps=10, n_agents=2), Replay(capacity=3, steps=10, n_agents=2)
+    for i in range(5):  # a batched step of more rows than the ring holds keeps the last ones, as one by one
+        one.add(i, np.array([i, 10 + i]), float(i))
+    once.add_many(np.arange(5), np.array([[i, 10 + i] for i in range(5)]), np.arange(5.0))
+    assert once.added == one.added == 5
+    assert all(torch.equal(getattr(once, k), getattr(one, k)) for k in ("task", "act", "value"))
 
 
 def test_the_nashq_engine_takes_its_inputs_from_the_encoding_module():
