@@ -76,6 +76,32 @@ def test_a_planner_entry_may_name_its_cases(tmp_path):
         load_matrix(write(tmp_path, bad))
 
 
+def test_an_entry_may_be_written_once_a_track(tmp_path):
+    """The same planner, config and label twice, with mode lists that do not overlap (per-task on
+    fewer cases, held-out on all): together they make the cells of one entry, with the ids the single
+    entry gives them."""
+    both = TRACKS.replace('cases = ["fan_small"]', 'cases = ["fan_small", "wing_panel_small"]').replace("tasks = 6",
+                                                                                                    "tasks = 3")
+    entry = '[[planners]]\nname = "local"\nlabel = "local+transfer"\nconfig = { transfer = 2 }\n'
+    assert entry in both
+    split = both.replace(entry, entry + 'mode = ["per-task"]\ncases = ["fan_small"]\n'
+                         + entry + 'mode = ["held-out"]\n')
+    full, kept = load_matrix(write(tmp_path, both)).cells(), load_matrix(write(tmp_path, split)).cells()
+    local = [c for c in kept if c.label == "local+transfer"]
+    assert {(c.case, c.mode) for c in local} == {("fan_small", "per-task"), ("fan_small", "held-out"),
+                                                 ("wing_panel_small", "held-out")}
+    assert {c.id for c in kept} == {c.id for c in full
+                                    if c.label != "local+transfer" or (c.case, c.mode) != ("wing_panel_small",
+                                                                                          "per-task")}
+    overlap = split.replace('mode = ["held-out"]\n', 'mode = ["held-out", "per-task"]\n')
+    with pytest.raises(Exception, match="'local\\+transfer'.*in mode per-task.*do not overlap"):
+        load_matrix(write(tmp_path, overlap))
+    other = split.replace(entry + 'mode = ["held-out"]', entry.replace("transfer = 2", "transfer = 1")
+                          + 'mode = ["held-out"]')
+    with pytest.raises(Exception, match="labelled 'local\\+transfer' with different"):
+        load_matrix(write(tmp_path, other))
+
+
 @pytest.mark.parametrize("edit, words", [
     (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 6, 20]\nbudget = 100"), ["not both"]),
     (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 0]"), ["samples_per_task", "positive"]),

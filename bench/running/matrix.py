@@ -179,6 +179,26 @@ def find_matrix(path: str | Path) -> Path:
     return path
 
 
+def _check_labels(r: Reader, planners: list[PlannerEntry], modes: list[str]) -> None:
+    """Each label names one entry in each track. The same planner, config and label may be written
+    twice with ``mode`` lists that do not overlap (say, on fewer parts in one track: reports show
+    them as one entry); anything else that shares a label is refused."""
+    seen: dict[str, list[PlannerEntry]] = {}
+    for p in planners:
+        label = p.label or p.name + (str(p.config) if p.config else "")
+        for q in seen.get(label, []):
+            if (q.name, q.config, q.budget, q.max_samples_per_task) != (p.name, p.config, p.budget,
+                                                                        p.max_samples_per_task):
+                raise r.error("planners", f"two entries are labelled '{label}' with different planners, "
+                                          "configs or budgets: give them different labels")
+            both = set(q.modes or modes) & set(p.modes or modes)
+            if both:
+                raise r.error("planners", f"two entries are the same planner and config ('{label}') in mode "
+                                          f"{', '.join(sorted(both))}: give them different labels or "
+                                          "mode lists that do not overlap")
+        seen.setdefault(label, []).append(p)
+
+
 def load_matrix(path: str | Path) -> Matrix:
     """Read and check a matrix file (or a shipped matrix by name, :func:`find_matrix`); every
     problem is a one-line CaseError (file, key, problem)."""
@@ -317,9 +337,7 @@ def load_matrix(path: str | Path) -> Matrix:
                 raise pr.error("mode", f"'{m}' is not one of the matrix's modes ({', '.join(modes)})")
         pr.finish()
         planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks))
-    labels = [p.label or p.name + (str(p.config) if p.config else "") for p in planners]
-    if len(set(labels)) != len(labels):
-        raise r.error("planners", "two entries are the same planner and config: give them different labels")
+    _check_labels(r, planners, modes)
     r.used.update(data)
     return Matrix(name, source, tuple(cases), tuple(materials), tuple(planners), tuple(seeds),
                   tuple(budgets), tuple(agents), tuple(modes), tasks, tuple(sweep), heldout_every, proof_limit,
