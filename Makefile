@@ -45,7 +45,7 @@ bench: setup
 
 test: $(TESTED) browser
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -n 2 --benchmark-disable
+	$(BIN)/python -m pytest -q -n 2 --benchmark-disable --durations=20
 
 lint: setup
 	$(BIN)/ruff check .
