@@ -4,8 +4,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 TESTED := $(VENV)/.installed-test
-# Lines of requirements.lock installed --no-deps, for the tests only: the marl extra (benchmarl, torchrl,
-# tensordict) and marl-eval's loader. Their declared requirements would pull another torch, torchvision
+# Lines of requirements.lock installed --no-deps by `make bench` and `make test`, so that a set-up machine
+# runs every planner (the paper matrix's mappo, ippo and qmix need them): the marl extra (benchmarl,
+# torchrl, tensordict) and marl-eval's loader. Their declared requirements would pull another torch, torchvision
 # and av (benchmarl) or pandas 1.4 (id-marl-eval); what they import is pinned in the lock beside them.
 NODEPS := ^(benchmarl|torchrl|tensordict|id-marl-eval)==
 
@@ -36,7 +37,7 @@ browser:
 		&& apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
 		|| echo "chromium not installed: tests/test_html.py skips"
 
-bench: setup
+bench: $(TESTED)
 	$(BIN)/fixbench validate
 	$(BIN)/fixbench run bench/matrices/default.toml --out results/default
 	$(BIN)/fixbench report results/default
