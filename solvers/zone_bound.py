@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 from fixbench.cases.fem import ScaledLU
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bound import force_total, point_compliance, point_forces
+from fixbench.solvers.bound import force_total, point_compliance, point_forces, solve_columns
 
 
 @dataclass(frozen=True)
@@ -125,9 +125,7 @@ class ZoneBound:
             else:
                 Bk = Bk[:, fs.free][:, keep].tocsr()
             lu = ScaledLU(fs.K[fs.free][:, fs.free][keep][:, keep].tocsc())
-            C = np.zeros((Bk.shape[0], Bk.shape[0]))
-            for lo in range(0, Bk.shape[0], 256):  # column blocks: a DOFs x rows dense solve would not fit
-                C[:, lo:lo + 256] = Bk @ lu.solve(Bk[lo:lo + 256].T.toarray())
+            C = solve_columns(lu, Bk.T, Bk)
             out.append((n, keep, lu, Bk, per, 0.5 * (C + C.T)))
         return out
 

@@ -79,16 +79,29 @@ def _registry_left_as_found():
 
 
 def pytest_configure(config):
-    """Tests never touch the user's oracle cache: each test process gets an empty one of its own
-    (subprocesses of CLI tests inherit it through the environment)."""
+    """Tests never touch the user's oracle cache: a test session gets an empty one of its own, made by
+    the process that starts the session and shared by its xdist workers (they inherit it through the
+    environment, as subprocesses of CLI tests do). Entries are written atomically (cases/cache.py),
+    so a part's compliance data is computed once a session, not once a worker."""
     import os
     import tempfile
 
-    os.environ["FIXBENCH_CACHE_DIR"] = tempfile.mkdtemp(prefix="fixbench-test-cache-")
+    if not _is_xdist_worker():
+        os.environ["FIXBENCH_CACHE_DIR"] = tempfile.mkdtemp(prefix="fixbench-test-cache-")
+        # room for every part a session prepares: an entry evicted while another worker reads it
+        # would be rebuilt there, not shared
+        os.environ["FIXBENCH_CACHE_MAX_GB"] = "32"
 
 
 def pytest_unconfigure(config):
     import os
     import shutil
 
-    shutil.rmtree(os.environ.get("FIXBENCH_CACHE_DIR", ""), ignore_errors=True)
+    if not _is_xdist_worker():
+        shutil.rmtree(os.environ.get("FIXBENCH_CACHE_DIR", ""), ignore_errors=True)
+
+
+def _is_xdist_worker() -> bool:
+    import os
+
+    return "PYTEST_XDIST_WORKER" in os.environ

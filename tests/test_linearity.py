@@ -31,15 +31,14 @@ def test_w_over_t_is_measured_at_the_optimum():
 
 @pytest.mark.slow
 def test_bus_panel_mesh_converged():
-    """The largest deflection of the shipped reference (its worst task) changes by at most 2 % when
-    every element size is halved (1.2 M DOFs: about three minutes)."""
+    """The largest deflection of the shipped reference (its worst task, by the file's own maxima) changes
+    by at most 2 % when every element size is halved (1.2 M DOFs: about three minutes)."""
     spec = load_case_spec("bus_panel")
     ref = load_reference("bus_panel", spec.material.name, spec.n_agents)
     assert ref is not None
     layouts = np.array([t["layout"] for t in ref["tasks"]])
-    coarse = Problem(spec)
-    w = [coarse.oracle.evaluate(k, layouts[k:k + 1])[0, 2] for k in range(len(layouts))]
-    k = int(np.argmax(w))
-    a = coarse.direct_deformation(k, layouts[k:k + 1]).max_u[0]
+    k = int(np.argmax([t["max_deformation_m"] for t in ref["tasks"]]))
+    a = Problem(spec).direct_deformation(k, layouts[k:k + 1]).max_u[0]
+    assert a == pytest.approx(ref["tasks"][k]["max_deformation_m"], rel=1e-9)  # the file's figure, solved here
     b = Problem(spec, mesh_scale=0.5).direct_deformation(k, layouts[k:k + 1]).max_u[0]
     assert abs(a / b - 1) <= 0.02, (a, b)
