@@ -8,6 +8,8 @@
     python -m studies.marl heldout [--case wing_panel] [--planner nashq|iql] [--every 5]
                                    [--episodes 100] [--json]
     python -m studies.marl floor   [--case wing_panel] [--threads T] [--json]
+    python -m studies.marl batching [--case wing_panel_small] [--planners vdn,nashq,iql] [--per-step 1,2,4]
+                                    [--seeds 20] [--episodes 100] [--json]
 
 ``figure4`` draws the report's Figure 4 (:func:`fixbench.bench.reporting.figures.draw_figure4`) one panel a
 file: (a) step reward against step, (b) episodic return and (c) episodic regret (the reference's
@@ -22,7 +24,9 @@ zero-sample layouts on the other tasks with planners that spend 1, 5, 20 and 100
 them (the harness's held-out table scores against the shipped reference at the matrix's one budget).
 ``floor`` measures what one network update of the protocol costs on this machine and what it cannot
 cost less than: the floating-point work of its 11 batched products against this machine's rate on a
-large matrix product, and the bytes of its optimiser pass (:func:`update_floor`).
+large matrix product, and the bytes of its optimiser pass (:func:`update_floor`). ``batching`` runs
+learners at several positions a step (``positions_per_step``) on a small case, many seeds each, and
+compares their regret against the proven optimum with the one-position-a-step runs (:func:`batching`).
 
 ``--planner`` takes the learners with the seed's reward and a ``device``, nashq and iql: vdn, mappo and
 ippo optimise the scaled reward only (time them with ``fixbench solve``).
@@ -304,6 +308,42 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     return rows
 
 
+def batching(case: str = "wing_panel_small", planners=("vdn", "nashq", "iql"), per_step=(1, 2, 4),
+             seeds: int = 20, episodes: int = 100) -> list[dict]:
+    """Each learner at each ``positions_per_step`` (its default config otherwise, the scaled reward), seeds
+    0 to ``seeds`` - 1, ``episodes`` samples a position, per-task: the mean over positions of the regret
+    against the proven optimum (the ``exact`` planner, uncounted) of each run, and per setting its mean with
+    a percentile-bootstrap 95 % CI, the IQM with its CI, the median CPU seconds of a run (this process's, one
+    thread, after an untimed one-episode run of the learner), and rliable's probability that a run of this
+    setting ends below a run at one position a step (the first value of ``per_step`` is the base)."""
+    from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement
+    from fixbench.solvers.registry import get
+
+    problem = load_problem(case)
+    prepare(problem)
+    opt = get("exact")().solve(problem, None).max_deformation
+    rows = []
+    for name in planners:
+        base = None
+        get(name)(episodes=1, threads=1).solve(problem, None, seed=0)  # start-up (imports, compilation): untimed
+        for p in per_step:
+            regret, cpu = [], []
+            for seed in range(seeds):
+                t = time.process_time()
+                res = get(name)(episodes=episodes, positions_per_step=p, threads=1).solve(problem, None, seed=seed)
+                cpu.append(time.process_time() - t)
+                regret.append(100 * float(np.mean(res.max_deformation / opt - 1)))
+            base = regret if base is None else base
+            mean, lo, hi = mean_ci(regret)
+            q, qlo, qhi = bootstrap_ci(regret, stat=iqm)
+            rows.append({"case": case, "planner": name, "positions_per_step": p, "runs": seeds,
+                         "samples": res.samples, "regret_mean_pct": mean,
+                         "regret_mean_ci": [lo, hi], "regret_iqm_pct": q, "regret_iqm_ci": [qlo, qhi],
+                         "p_below_base": list(probability_of_improvement(regret, base)),
+                         "cpu_s_median": float(np.median(cpu)), "regret_pct": regret})
+    return rows
+
+
 PROG = "python -m studies.marl"
 PLANNER_HELP = "the learners with the seed's reward (vdn, mappo and ippo have only the scaled reward)"
 
@@ -388,6 +428,24 @@ def floor_cmd(case: str, agents: int | None, threads: int, as_json: bool) -> Non
 def table_cmd(episodes: int, seed: int, as_json: bool) -> None:
     """Compare nashq and iql with the proven optimum on every *_small case."""
     _print_rows(table(episodes, seed), as_json)
+
+
+@cli.command("batching", short_help="Learners at several positions a step against the proven optimum.")
+@click.option("--case", default="wing_panel_small", show_default=True, help="a case the exact planner enumerates")
+@click.option("--planners", default="vdn,nashq,iql", show_default=True, help="comma-separated learners")
+@click.option("--per-step", default="1,2,4", show_default=True,
+              help="comma-separated positions_per_step values; the first is the base of the comparison")
+@click.option("--seeds", type=click.IntRange(min=2), default=20, show_default=True, help="runs 0 .. N-1 a setting")
+@click.option("--episodes", type=click.IntRange(min=1), default=100, show_default=True)
+@click.option("--json", "as_json", is_flag=True)
+def batching_cmd(case: str, planners: str, per_step: str, seeds: int, episodes: int, as_json: bool) -> None:
+    """Run each learner at each positions_per_step for many seeds on a small case; regret against the
+    proven optimum, its intervals and CPU time, beside the first positions_per_step value's."""
+    rows = batching(case, planners.split(","), [int(x) for x in per_step.split(",")], seeds, episodes)
+    if not as_json:  # intervals as "low-high", one run's regrets left out
+        rows = [{k: f"{v[0]:.3g}-{v[1]:.3g}" if k.endswith("_ci") else f"{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]"
+                 if k == "p_below_base" else v for k, v in r.items() if k != "regret_pct"} for r in rows]
+    _print_rows(rows, as_json)
 
 
 def _print_rows(rows: list[dict], as_json: bool) -> None:

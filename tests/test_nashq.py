@@ -222,6 +222,25 @@ def test_heldout_benchmark_rows():
     assert all(r["gap_to_best_found_pct"] >= 0 for r in rows)
 
 
+def test_batching_study_scores_each_run_against_the_proven_optimum():
+    """studies.marl batching: every run spends its episodes on every position, its regret is its mean
+    gap to the exact planner's optimum (>= 0) and equals a direct run's of the same seed; the base setting
+    is level with itself (P = 1/2) and the intervals hold their point estimates."""
+    from studies.marl import batching
+
+    rows = batching("fan_small", ("iql",), (1, 2), seeds=2, episodes=2)
+    problem = load_problem("fan_small")
+    assert [r["positions_per_step"] for r in rows] == [1, 2]
+    assert all(r["samples"] == 2 * problem.n_tasks and min(r["regret_pct"]) >= 0 for r in rows)
+    opt = get("exact")().solve(problem, None).max_deformation
+    again = get("iql")(episodes=2, threads=1).solve(problem, None, seed=1).max_deformation
+    assert rows[0]["regret_pct"][1] == 100 * float(np.mean(again / opt - 1))
+    assert rows[0]["p_below_base"][0] == 0.5
+    for r in rows:
+        assert r["regret_mean_ci"][0] <= r["regret_mean_pct"] <= r["regret_mean_ci"][1]
+        assert r["regret_iqm_ci"][0] <= r["regret_iqm_pct"] <= r["regret_iqm_ci"][1]
+
+
 def test_update_floor_times_the_updates_own_products():
     """studies.marl floor: the products it times do the floating-point work torch counts in a real update,
     the lower bound it derives lies below what the update costs on the same machine, and the thread
