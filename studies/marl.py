@@ -319,18 +319,21 @@ def batching(case: str = "wing_panel_small", planners=("vdn", "nashq", "iql"), p
     from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement
     from fixbench.solvers.registry import get
 
+    # every learner and setting configured (and so checked) before the oracle and the optimum are computed
+    runs = {name: [get(name)(episodes=episodes, positions_per_step=p, threads=1) for p in per_step]
+            for name in planners}
     problem = load_problem(case)
     prepare(problem)
     opt = get("exact")().solve(problem, None).max_deformation
     rows = []
-    for name in planners:
+    for name, settings in runs.items():
         base = None
         get(name)(episodes=1, threads=1).solve(problem, None, seed=0)  # start-up (imports, compilation): untimed
-        for p in per_step:
+        for p, planner in zip(per_step, settings):
             regret, cpu = [], []
             for seed in range(seeds):
                 t = time.process_time()
-                res = get(name)(episodes=episodes, positions_per_step=p, threads=1).solve(problem, None, seed=seed)
+                res = planner.solve(problem, None, seed=seed)
                 cpu.append(time.process_time() - t)
                 regret.append(100 * float(np.mean(res.max_deformation / opt - 1)))
             base = regret if base is None else base
@@ -345,6 +348,14 @@ def batching(case: str = "wing_panel_small", planners=("vdn", "nashq", "iql"), p
 
 
 PROG = "python -m studies.marl"
+
+
+def _ints(ctx, param, value: str) -> list[int]:
+    """A comma-separated list of integers, or a usage error naming the option."""
+    try:
+        return [int(x) for x in value.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a comma-separated list of integers") from None
 PLANNER_HELP = "the learners with the seed's reward (vdn, mappo and ippo have only the scaled reward)"
 
 
@@ -356,16 +367,17 @@ def cli() -> None:
 @cli.command("figure4", short_help="Draw the report's Figure 4, one panel a file.")
 @click.option("--case", default="wing_panel", show_default=True)
 @click.option("--planner", type=click.Choice(SEED_LEARNERS), default="nashq", show_default=True, help=PLANNER_HELP)
-@click.option("--agents", default="5", show_default=True, help="comma-separated agent counts, one run each")
+@click.option("--agents", default="5", show_default=True, callback=_ints,
+              help="comma-separated agent counts, one run each")
 @click.option("--episodes", type=int, default=100, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--out", default="results/figures/marl", show_default=True)
-def figure4_cmd(case: str, planner: str, agents: str, episodes: int, seed: int, out: str) -> None:
+def figure4_cmd(case: str, planner: str, agents: list[int], episodes: int, seed: int, out: str) -> None:
     """Draw the report's Figure 4 one panel a file, one line and one violin per agent count."""
     from fixbench.solvers.registry import get
 
     results = {}
-    for n in [int(x) for x in agents.split(",")]:
+    for n in agents:
         problem = load_problem(case, agents=n)
         prepare(problem)
         results[f"{planner} N={n}"] = get(planner)(episodes=episodes,
@@ -433,15 +445,15 @@ def table_cmd(episodes: int, seed: int, as_json: bool) -> None:
 @cli.command("batching", short_help="Learners at several positions a step against the proven optimum.")
 @click.option("--case", default="wing_panel_small", show_default=True, help="a case the exact planner enumerates")
 @click.option("--planners", default="vdn,nashq,iql", show_default=True, help="comma-separated learners")
-@click.option("--per-step", default="1,2,4", show_default=True,
+@click.option("--per-step", default="1,2,4", show_default=True, callback=_ints,
               help="comma-separated positions_per_step values; the first is the base of the comparison")
 @click.option("--seeds", type=click.IntRange(min=2), default=20, show_default=True, help="runs 0 .. N-1 a setting")
 @click.option("--episodes", type=click.IntRange(min=1), default=100, show_default=True)
 @click.option("--json", "as_json", is_flag=True)
-def batching_cmd(case: str, planners: str, per_step: str, seeds: int, episodes: int, as_json: bool) -> None:
+def batching_cmd(case: str, planners: str, per_step: list[int], seeds: int, episodes: int, as_json: bool) -> None:
     """Run each learner at each positions_per_step for many seeds on a small case; regret against the
     proven optimum, its intervals and CPU time, beside the first positions_per_step value's."""
-    rows = batching(case, planners.split(","), [int(x) for x in per_step.split(",")], seeds, episodes)
+    rows = batching(case, planners.split(","), per_step, seeds, episodes)
     if not as_json:  # intervals as "low-high", one run's regrets left out
         rows = [{k: f"{v[0]:.3g}-{v[1]:.3g}" if k.endswith("_ci") else f"{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]"
                  if k == "p_below_base" else v for k, v in r.items() if k != "regret_pct"} for r in rows]

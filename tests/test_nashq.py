@@ -269,6 +269,21 @@ def test_studies_take_only_the_learners_with_the_seed_reward(capsys):
     assert "\n" not in err and "'vdn' is not one of 'nashq', 'iql'" in err
 
 
+@pytest.mark.parametrize("args, says", [(["--per-step", "1,x"], "'--per-step': '1,x' is not a comma-separated list"),
+                                        (["--per-step", "0"], "positions_per_step must be at least 1"),
+                                        (["--planners", "random"], "unexpected keyword argument 'episodes'")])
+def test_batching_study_checks_its_settings_before_any_work(capsys, monkeypatch, args, says):
+    """studies.marl batching: a bad setting is one line and exit code 2, before the problem is loaded."""
+    import studies.marl
+
+    def no_problem(*a, **k):
+        raise AssertionError("the problem was loaded before the settings were checked")
+
+    monkeypatch.setattr(studies.marl, "load_problem", no_problem)
+    assert studies.marl.main(["batching", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and says in err
+
 def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
     """What runs on a GPU (torch's AdamW + lerp; weights copied to the host for best response), run here
     on the CPU: the same update as the fused pass to float32 round-off, and a whole short training
