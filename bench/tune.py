@@ -19,8 +19,10 @@ to positions never sampled, so a configuration tuned on one track is not the oth
 
 The result is a matrix fragment (``--out FILE.toml``): one ``[[planners]]`` entry labelled
 "PLANNER (tuned)" (per-task) or "PLANNER (tuned held-out)", restricted to its track (``mode``), with the
-fields that differ from the defaults, and, in comments, the track, the objective of the defaults and of
-the tuned configuration and the trials spent. The norm this follows: the same
+fields that differ from the defaults (``config``) and, as data, a ``tuning`` table: the track, trials,
+cases, seeds and samples a position spent and the objective of the defaults and of the tuned
+configuration (:func:`figures`). ``tuning`` is provenance: the matrix loader checks its shape and no cell
+depends on it; ``fixbench tune-table`` reads it (:func:`read_entry`). The norm this follows: the same
 tuning budget for every method, on tasks that are not reported (Papoudakis et al. NeurIPS 2021
 Datasets and Benchmarks; Gorsane et al. NeurIPS 2022).
 """
@@ -30,7 +32,7 @@ from __future__ import annotations
 import functools
 import json
 import math
-import re
+import numbers
 from dataclasses import fields
 from pathlib import Path
 
@@ -152,27 +154,81 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
             "track": track, "heldout_every": heldout_every if track == "held-out" else None}
 
 
+#: the keys of a tuned entry's ``tuning`` table, in the order ``matrix_entry`` writes them
+FIGURES = ("track", "heldout_every", "trials", "cases", "seeds", "samples_per_task", "objective_default",
+           "objective_tuned")
+#: the command that writes a tuned entry (named where one is refused)
+WRITER = "`fixbench tune PLANNER --out FILE.toml`"
+
+
+def figures(result: dict) -> dict:
+    """The ``tuning`` table of a tuning result: how it was tuned (track, ``heldout_every`` for the
+    held-out track only, trials, cases, seeds, samples a position) and the objective (mean log(1 +
+    regret)) of the defaults and of the tuned config, at full precision."""
+    track = result.get("track", "per-task")
+    out = {"track": track, "heldout_every": result.get("heldout_every") if track == "held-out" else None,
+           "trials": len(result["trials"]), "cases": list(result["cases"]), "seeds": list(result["seeds"]),
+           "samples_per_task": result["samples_per_task"], "objective_default": float(result["default"]),
+           "objective_tuned": float(result["tuned"])}
+    return {k: out[k] for k in FIGURES if out[k] is not None}
+
+
+def read_figures(table, source: str, key: str = "tuning") -> dict:
+    """A ``tuning`` table (:func:`figures`) checked: a table of exactly those keys, each of its kind;
+    anything else is a one-line CaseError naming ``source`` and the key. The matrix loader checks a
+    ``[[planners]]`` entry's ``tuning`` with this and keeps nothing of it: it is provenance, not a
+    setting (no cell's config or id depends on it)."""
+    from fixbench.cases.units import Reader
+
+    r = Reader(table, source, key)
+    track = r.text("track", choices=TRACKS)
+    every = r.integer("heldout_every", None, minimum=2)
+    if (track == "held-out") != (every is not None):
+        raise r.error("heldout_every", "is needed by track \"held-out\" (the split tuned on) and only then")
+    out = {"track": track, "heldout_every": every, "trials": r.integer("trials", minimum=1)}
+    for name, kind in (("cases", str), ("seeds", int)):
+        values = r.raw(name, ..., (list,))
+        if not values or any(not isinstance(v, kind) or isinstance(v, bool) for v in values):
+            raise r.error(name, f"must be a non-empty list of {kind.__name__}, got {values!r}")
+        out[name] = list(values)
+    out["samples_per_task"] = r.integer("samples_per_task", minimum=1)
+    for name in ("objective_default", "objective_tuned"):
+        out[name] = r.number(name, nonneg=True)
+    r.finish()
+    return {k: out[k] for k in FIGURES if out[k] is not None}
+
+
 def matrix_entry(result: dict) -> str:
-    """The ``[[planners]]`` entry of a tuning result, restricted to its track, with its figures as comments."""
+    """The ``[[planners]]`` entry of a tuning result, restricted to its track, its figures in its
+    ``tuning`` table (:func:`figures`; read back by :func:`read_entry`)."""
     cfg = ", ".join(f"{k} = {_toml(v)}" for k, v in sorted(result["config"].items()))
     track = result.get("track", "per-task")
     held = track == "held-out"
-    where = (f"the held-out split (k = {result['heldout_every']}: trained on positions 0, k, 2k, ..., scored on "
-             "the others)" if held else "every position")
-    return (f"# {result['planner']}: tuned with {len(result['trials'])} trials on {', '.join(result['cases'])} "
-            f"(seeds {result['seeds']}, {result['samples_per_task']} samples a position); mean log(1 + regret): "
-            f"defaults {result['default']:.4f}, tuned {result['tuned']:.4f}\n"
-            f"# track {track}: tuned on {where}\n"
-            f"[[planners]]\nname = \"{result['planner']}\"\n"
-            f"label = \"{result['planner']} (tuned{' held-out' if held else ''})\"\nmode = [\"{track}\"]\n"
-            + (f"config = {{ {cfg} }}\n" if cfg else ""))
+    return ("# tuned by `fixbench tune`: `tuning` says how, and the objective (mean log(1 + regret)) of the "
+            "defaults and of the tuned config\n"
+            f"[[planners]]\nname = {_toml(result['planner'])}\n"
+            f"label = {_toml(result['planner'] + (' (tuned held-out)' if held else ' (tuned)'))}\n"
+            f"mode = {_toml([track])}\n"
+            + (f"config = {{ {cfg} }}\n" if cfg else "")
+            + f"tuning = {_inline(figures(result))}\n")
+
+
+def _inline(table: dict) -> str:
+    return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in table.items()) + " }"
 
 
 def _toml(v) -> str:
+    """A TOML value: a boolean, string, whole number, float (full precision) or a list of them."""
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
         return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    if isinstance(v, numbers.Integral):
+        return str(int(v))
+    if isinstance(v, numbers.Real):
+        return repr(float(v))
     return repr(v)
 
 
@@ -182,35 +238,39 @@ def write_entry(result: dict, out: Path) -> None:
     write_text_atomic(Path(out), matrix_entry(result))
 
 
-#: the figures line ``matrix_entry`` writes above the entry
-_FIGURES = re.compile(r"^# (?P<planner>\S+): tuned with (?P<trials>\d+) trials on .*mean log\(1 \+ regret\): "
-                      r"defaults (?P<default>[\d.]+), tuned (?P<tuned>[\d.]+)$", re.M)
-
-
 def read_entry(path: Path) -> dict:
-    """A tuned entry written by ``write_entry``: planner, trials, the two objectives and the config."""
+    """A tuned entry written by ``write_entry``: planner, trials, the two objectives, the config, the
+    track it runs in, and its ``tuning`` table (``figures``); a file without that table, or with a
+    malformed one, is a one-line CaseError naming the file and the key."""
     import tomllib
 
-    text = Path(path).read_text(encoding="utf-8")
-    m = _FIGURES.search(text)
-    if not m:
-        raise CaseError(str(path), "", "has no '# PLANNER: tuned with N trials ... defaults X, tuned Y' line "
-                        "(write it with `fixbench tune PLANNER --out FILE`)")
+    from fixbench.cases.units import Reader
+
+    source = str(path)
     try:
-        planners = tomllib.loads(text).get("planners") or [{}]
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
-        raise CaseError(str(path), "", f"is not valid TOML: {exc}") from None
-    modes = planners[0].get("mode", [])
-    return {"planner": m["planner"], "trials": int(m["trials"]), "default": float(m["default"]),
-            "tuned": float(m["tuned"]), "config": dict(planners[0].get("config", {})),
-            "track": ", ".join(modes) if modes else "both (tuned per-task)"}
+        raise CaseError(source, "", f"is not valid TOML: {exc}") from None
+    planners = data.get("planners")
+    if not isinstance(planners, list) or not planners:
+        raise CaseError(source, "planners", f"missing: not a tuned [[planners]] entry (write one with {WRITER})")
+    entry = Reader(planners[0], source, "planners[0]")
+    name = entry.text("name")
+    if "tuning" not in entry.data:
+        raise entry.error("tuning", f"missing: the tuned entry's figures (write them with {WRITER})")
+    figs = read_figures(entry.data["tuning"], source, entry.key("tuning"))
+    config = entry.raw("config", {}, (dict,))
+    modes = entry.raw("mode", [], (list,))
+    return {"planner": name, "trials": figs["trials"], "default": figs["objective_default"],
+            "tuned": figs["objective_tuned"], "config": dict(config),
+            "track": ", ".join(modes) if modes else f"both (tuned {figs['track']})", "tuning": figs}
 
 
 def tuning_table(folder: Path) -> str:
     """The Markdown table of every tuned entry (``*.toml``) in ``folder``, by planner and track: the track
-    it runs in (an entry without ``mode`` runs in both, tuned per-task), the objective of the defaults and
-    of the tuned config, each with the geometric-mean regret it stands for, and the tuned config
-    (``fixbench tune-table``)."""
+    it runs in (an entry without ``mode`` runs in both, tuned for its ``tuning.track``), the objective of
+    the defaults and of the tuned config, each with the geometric-mean regret it stands for, and the tuned
+    config (``fixbench tune-table``)."""
     from fixbench.bench.reporting.tables import fmt
 
     def regret(x: float) -> str:

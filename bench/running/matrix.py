@@ -335,6 +335,10 @@ def load_matrix(path: str | Path) -> Matrix:
         for m in tracks:
             if m not in modes:
                 raise pr.error("mode", f"'{m}' is not one of the matrix's modes ({', '.join(modes)})")
+        if pr.raw("tuning", None) is not None:  # how `fixbench tune` made the entry: checked, kept by no cell
+            from fixbench.bench.tune import read_figures
+
+            read_figures(pr.data["tuning"], source, pr.key("tuning"))
         pr.finish()
         planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks))
     _check_labels(r, planners, modes)
