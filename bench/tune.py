@@ -39,12 +39,11 @@ from pathlib import Path
 import numpy as np
 
 from fixbench.bench.running.keys import split
+from fixbench.bench.running.matrix import FIGURES, TRACKS, read_figures
 from fixbench.cases.errors import CaseError
 
 #: the tuning problems: the small variants of the catalog's parts (never a reported problem)
 TUNING_CASES = ("wing_panel_small", "wing_spar_small", "bus_panel_small", "fan_small")
-#: the tracks a configuration is tuned for (the matrix's modes of the same names)
-TRACKS = ("per-task", "held-out")
 KINDS = ("int", "float", "log", "choice")
 
 
@@ -154,9 +153,6 @@ def tune(planner: str, trials: int, cases=TUNING_CASES, seeds=(0,), samples_per_
             "track": track, "heldout_every": heldout_every if track == "held-out" else None}
 
 
-#: the keys of a tuned entry's ``tuning`` table, in the order ``matrix_entry`` writes them
-FIGURES = ("track", "heldout_every", "trials", "cases", "seeds", "samples_per_task", "objective_default",
-           "objective_tuned")
 #: the command that writes a tuned entry (named where one is refused)
 WRITER = "`fixbench tune PLANNER --out FILE.toml`"
 
@@ -170,31 +166,6 @@ def figures(result: dict) -> dict:
            "trials": len(result["trials"]), "cases": list(result["cases"]), "seeds": list(result["seeds"]),
            "samples_per_task": result["samples_per_task"], "objective_default": float(result["default"]),
            "objective_tuned": float(result["tuned"])}
-    return {k: out[k] for k in FIGURES if out[k] is not None}
-
-
-def read_figures(table, source: str, key: str = "tuning") -> dict:
-    """A ``tuning`` table (:func:`figures`) checked: a table of exactly those keys, each of its kind;
-    anything else is a one-line CaseError naming ``source`` and the key. The matrix loader checks a
-    ``[[planners]]`` entry's ``tuning`` with this and keeps nothing of it: it is provenance, not a
-    setting (no cell's config or id depends on it)."""
-    from fixbench.cases.units import Reader
-
-    r = Reader(table, source, key)
-    track = r.text("track", choices=TRACKS)
-    every = r.integer("heldout_every", None, minimum=2)
-    if (track == "held-out") != (every is not None):
-        raise r.error("heldout_every", "is needed by track \"held-out\" (the split tuned on) and only then")
-    out = {"track": track, "heldout_every": every, "trials": r.integer("trials", minimum=1)}
-    for name, kind in (("cases", str), ("seeds", int)):
-        values = r.raw(name, ..., (list,))
-        if not values or any(not isinstance(v, kind) or isinstance(v, bool) for v in values):
-            raise r.error(name, f"must be a non-empty list of {kind.__name__}, got {values!r}")
-        out[name] = list(values)
-    out["samples_per_task"] = r.integer("samples_per_task", minimum=1)
-    for name in ("objective_default", "objective_tuned"):
-        out[name] = r.number(name, nonneg=True)
-    r.finish()
     return {k: out[k] for k in FIGURES if out[k] is not None}
 
 

@@ -336,8 +336,6 @@ def load_matrix(path: str | Path) -> Matrix:
             if m not in modes:
                 raise pr.error("mode", f"'{m}' is not one of the matrix's modes ({', '.join(modes)})")
         if pr.raw("tuning", None) is not None:  # how `fixbench tune` made the entry: checked, kept by no cell
-            from fixbench.bench.tune import read_figures
-
             read_figures(pr.data["tuning"], source, pr.key("tuning"))
         pr.finish()
         planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks))
@@ -354,3 +352,33 @@ def _as_text(v) -> str:
     if isinstance(v, list):
         return ",".join(map(str, v))
     return str(v)
+
+
+#: the tracks a configuration is tuned for (the matrix's modes of the same names)
+TRACKS = ("per-task", "held-out")
+#: the keys of a tuned entry's ``tuning`` table, in the order ``matrix_entry`` writes them
+FIGURES = ("track", "heldout_every", "trials", "cases", "seeds", "samples_per_task", "objective_default",
+           "objective_tuned")
+
+
+def read_figures(table, source: str, key: str = "tuning") -> dict:
+    """A ``tuning`` table (:func:`figures`) checked: a table of exactly those keys, each of its kind;
+    anything else is a one-line CaseError naming ``source`` and the key. The matrix loader checks a
+    ``[[planners]]`` entry's ``tuning`` with this and keeps nothing of it: it is provenance, not a
+    setting (no cell's config or id depends on it)."""
+    r = Reader(table, source, key)
+    track = r.text("track", choices=TRACKS)
+    every = r.integer("heldout_every", None, minimum=2)
+    if (track == "held-out") != (every is not None):
+        raise r.error("heldout_every", "is needed by track \"held-out\" (the split tuned on) and only then")
+    out = {"track": track, "heldout_every": every, "trials": r.integer("trials", minimum=1)}
+    for name, kind in (("cases", str), ("seeds", int)):
+        values = r.raw(name, ..., (list,))
+        if not values or any(not isinstance(v, kind) or isinstance(v, bool) for v in values):
+            raise r.error(name, f"must be a non-empty list of {kind.__name__}, got {values!r}")
+        out[name] = list(values)
+    out["samples_per_task"] = r.integer("samples_per_task", minimum=1)
+    for name in ("objective_default", "objective_tuned"):
+        out[name] = r.number(name, nonneg=True)
+    r.finish()
+    return {k: out[k] for k in FIGURES if out[k] is not None}
