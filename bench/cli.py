@@ -329,7 +329,9 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
               help="Run directory (created; rerunning resumes).")
 @click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True)
 @click.option("--workers", type=click.IntRange(min=1), help="Parallel workers (default: one per core).")
-@click.option("--ray-address", help="Address of an existing Ray cluster (default: start a local one).")
+@click.option("--ray-address", help="Ray cluster to run on (HOST:PORT of its head; auto: the one on this machine; "
+              "local: a private instance). Default: RAY_ADDRESS, else the cluster `ray start` started on this "
+              "machine, else a private instance of --workers CPUs.")
 @click.option("--cell-timeout", type=click.FloatRange(min=0, min_open=True),
               help="Stop a cell after this many seconds; it becomes a row with an error.")
 @click.option("--retry-failed", is_flag=True, help="Rerun cells whose row carries an error.")

@@ -7,8 +7,11 @@ exceeds the timeout is stopped and comes back as an error; so does a worker that
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
+import socket
+import sys
 import time
 from collections.abc import Callable
 from multiprocessing.connection import wait
@@ -17,6 +20,7 @@ import psutil
 
 from fixbench.bench.running.cells import run_cell
 from fixbench.bench.running.references import compute_reference, prove_position
+from fixbench.cases.errors import CaseError
 
 Job = tuple  # ("reference", args) | ("position", (position,)) | ("cell", (cell, reference))
 #: thread pools a worker would otherwise size to the whole machine (BLAS inside SuperLU, numba, torch)
@@ -190,17 +194,44 @@ class LocalExecutor:
 
 
 class RayExecutor:
-    """The same jobs as Ray tasks (one CPU each) on a local Ray instance or an existing cluster."""
+    """The same jobs as Ray tasks (one CPU each), on the Ray cluster that is there or on a private
+    local instance.
+
+    The cluster is the one ``address`` names (``--ray-address``; ``auto``: the one Ray finds), else
+    the one ``RAY_ADDRESS`` names (as on a cluster's nodes and in the jobs submitted to it), else the
+    one ``ray start`` started on this machine (Ray records its address in its temp folder). Its CPUs
+    bound the jobs in flight and ``workers`` caps them. With none of these, or ``address="local"``,
+    a private instance with ``workers`` CPUs (default: one per core) is started: it never attaches
+    to anything else. The run's first line on stderr says which; an address where no Ray cluster
+    answers is a :class:`CaseError` naming it (checked first: Ray itself retries for many minutes).
+    """
 
     def __init__(self, workers: int | None = None, timeout: float | None = None, address: str | None = None,
                  env: dict[str, str] | None = None):
         import ray
 
         self.ray = ray
-        if not ray.is_initialized():
-            kwargs = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
-            ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
-        self.workers = workers or int(ray.cluster_resources().get("CPU", 1))
+        self.owned = not ray.is_initialized()  # a connection or instance of ours: close() ends it
+        quiet = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
+        if not self.owned:
+            self.workers = _in_flight(workers, int(ray.cluster_resources().get("CPU", 0)))
+            _say(f"using the instance this process is connected to, at most {_count(self.workers, 'cell')} in flight")
+        elif (cluster := _find_cluster(address)) is None:
+            self.workers = max(1, workers or os.cpu_count() or 1)
+            ray.init(address="local", num_cpus=self.workers, **quiet)
+            _say(f"started a private local instance ({_count(self.workers, 'CPU')})")
+        else:
+            source, named, where = cluster
+            if "://" not in where:
+                _check_answers(source, named, where)
+            try:
+                ray.init(address=address, **quiet)  # as given: Ray finds the same cluster (and its token)
+            except Exception as exc:  # a version mismatch, missing authentication, ...
+                raise CaseError(source, named, f"could not connect to a Ray cluster there: {_reason(exc)}") from None
+            cpus = int(ray.cluster_resources().get("CPU", 0))
+            self.workers = _in_flight(workers, cpus)
+            _say(f"connected to the cluster at {where} ({_count(cpus, 'CPU')}; from {source}), "
+                 f"at most {_count(self.workers, 'cell')} in flight")
         self.timeout = timeout
         options = {"runtime_env": {"env_vars": dict(env)}} if env else {}
         self.remote = ray.remote(num_cpus=1, max_retries=0, **options)(_ray_execute)
@@ -226,7 +257,96 @@ class RayExecutor:
                         on_result(job, None, f"timeout: stopped after {self.timeout:g} s")
 
     def close(self) -> None:
-        """Nothing to stop: Ray owns its workers."""
+        """Stop the private instance, or leave the cluster (its nodes go on); an instance this
+        process was connected to before is left as it was."""
+        if self.owned:
+            self.ray.shutdown()
+            self.owned = False
+
+
+def _say(what: str) -> None:
+    print(f"fixbench run: Ray: {what}", file=sys.stderr, flush=True)
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
+def _in_flight(workers: int | None, cpus: int) -> int:
+    """Jobs in flight on a cluster of ``cpus`` CPUs, ``workers`` capping them; a cluster that has
+    none yet (one an autoscaler grows) gets ``workers``, or 1."""
+    if cpus < 1:
+        return workers or 1
+    return min(workers, cpus) if workers else cpus
+
+
+def _find_cluster(address: str | None) -> tuple[str, str, str] | None:
+    """(where it was named, its address as named, its address) of the Ray cluster to connect to,
+    found as ``ray.init`` finds it (:func:`ray._private.services.canonicalize_bootstrap_address`:
+    HOST:PORT, this machine's own address for ``localhost``); None: start a private instance.
+    Where it was named: ``--ray-address``, ``RAY_ADDRESS`` or the file ``ray start`` writes."""
+    from ray._common.utils import get_ray_address_file
+    from ray._private.services import canonicalize_bootstrap_address
+
+    env = os.environ.get("RAY_ADDRESS", "")
+    if address and (address != "auto" or not env):
+        source, given = "--ray-address", address
+    elif env:
+        source, given = "RAY_ADDRESS", env
+    else:
+        source, given = get_ray_address_file(None), None
+    if given and "://" in given:
+        return source, given, given  # Ray Client (ray://): ray.init checks it
+    try:
+        found = canonicalize_bootstrap_address(address)
+    except ValueError:
+        raise CaseError(source, given or "", "not a Ray cluster's address (HOST:PORT, auto or local)") from None
+    except ConnectionError:  # auto, and no cluster on this machine
+        raise CaseError(source, given or "", "no Ray cluster runs on this machine (`ray start --head` starts one)") \
+            from None
+    return None if found is None else (source, given or found, found)
+
+
+#: what an HTTP/2 client sends first (the preface, then an empty SETTINGS frame); gRPC, Ray's
+#: protocol, is HTTP/2, and a server of it answers with a SETTINGS frame of its own
+_HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _check_answers(source: str, named: str, address: str, timeout: float = 10.0) -> None:
+    """Raise :class:`CaseError` (naming the address as ``source`` named it) unless a gRPC server
+    answers at ``address`` (HOST:PORT), as a Ray cluster's GCS does: ``ray.init`` would otherwise
+    retry for many minutes (a port where nothing listens, a host that is down, the dashboard's
+    port). TLS clusters (``RAY_USE_TLS``) are only checked to accept connections."""
+    host, _, port = address.rpartition(":")
+    hint = ("; `ray stop` clears this file, --ray-address local starts a private instance"
+            if source not in ("--ray-address", "RAY_ADDRESS") else "")
+    reply = b""
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout) as conn:
+            if os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true"):
+                return
+            conn.sendall(_HTTP2_HELLO)
+            while len(reply) < 9 and (chunk := conn.recv(9 - len(reply))):
+                reply += chunk
+    except (OSError, ValueError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise CaseError(source, named, f"cannot reach a Ray cluster there: {why}{hint}") from None
+    if reply[3:4] != b"\x04":
+        raise CaseError(source, named, "no Ray cluster answers there (a Ray head's address is its GCS port, "
+                        f"6379 unless `ray start --port` chose another){hint}")
+
+
+def _reason(exc: BaseException) -> str:
+    """The first line of ``exc``, with a hint where the cluster refused a driver without its token."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    causes, cause = [], exc
+    while cause is not None:
+        causes.append(str(cause))
+        cause = cause.__cause__ or cause.__context__
+    if any("Unauthenticated" in c or "AuthToken" in c or "authentication token" in c for c in causes):
+        text += (" (the cluster wants its authentication token: set RAY_AUTH_MODE=token, with the token in "
+                 "RAY_AUTH_TOKEN or ~/.ray/auth_token)")
+    return text
 
 
 def _ray_execute(job: Job) -> dict:  # pragma: no cover - runs in a Ray worker
