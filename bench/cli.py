@@ -197,19 +197,27 @@ def evaluate(case, task, layout, free, at, material, as_json, plot, vtk) -> None
 @cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list of checks.")
 @click.option("--parts/--no-parts", "with_parts", default=True, show_default=True,
-              help="The w/t lines of the catalog parts (they solve every part: minutes).")
-def validate(as_json: bool, with_parts: bool) -> None:
+              help="The catalog parts' lines (they solve every part directly: tens of minutes).")
+@click.option("--part", "only", multiple=True, metavar="CASE",
+              help="Only these catalog cases' lines (repeatable; default: every fixture case).")
+def validate(as_json: bool, with_parts: bool, only: tuple[str, ...]) -> None:
     """Analytic checks (plates of Timoshenko and Roark, a membrane strip); exit 1 if any > 1%. Then one
     line per catalog part: its largest w/t at the reference layouts (shipped reference, or the proven
-    optimum of a *_small case at the default matrix's agent count); exit 1 if any is beyond 0.5."""
+    optimum of a *_small case at the default matrix's agent count); exit 1 if any is beyond 0.5. Then,
+    for each full part, the fast oracle against a direct solve (exit 1 beyond a relative 1e-9) and the
+    mesh at its shipped reference's worst task (exit 1 if halving the elements moves max |u| > 2 %)."""
     from fixbench.bench.running.matrix import find_matrix, load_matrix
     from fixbench.cases.analytic import validate as run
     from fixbench.cases.linearity import part_rows
+    from fixbench.cases.part_checks import fixture_cases, full_part_rows, full_parts
 
+    names = fixture_cases(only)
     checks = run()
-    parts = part_rows(small_agents=min(load_matrix(find_matrix("default")).agents)) if with_parts else []
+    agents = min(load_matrix(find_matrix("default")).agents)
+    parts = part_rows(small_agents=agents, names=names) if with_parts else []
+    whole = full_part_rows([n for n in full_parts() if names is None or n in names]) if with_parts else []
     if as_json:
-        echo_json(checks + parts)
+        echo_json(checks + parts + whole)
     else:
         import pandas as pd
 
@@ -221,7 +229,16 @@ def validate(as_json: bool, with_parts: bool) -> None:
                   "t (mm)": 1e3 * r["thickness_m"], "w/t": r["w_over_t"],
                   "": "BEYOND 0.5: outside linear plate theory" if r["flagged"] else ""} for r in parts]
         click.echo(pd.DataFrame(table).to_markdown(index=False, floatfmt=".3g"))
-    if any(c["rel_error"] > 0.01 for c in checks) or any(r["flagged"] for r in parts):
+        click.echo()
+        table = [{"part": r["name"], "check": r["check"],
+                  "measured": r["worst_rel_difference"] if r["check"] == "oracle" else r["change"],
+                  "limit": r["limit"],
+                  "what": (f"worst relative difference to a direct solve, {r['layouts']} random layouts"
+                           if r["check"] == "oracle" else r.get("note") or
+                           f"change of max |u| at task {r['task']} with half the element size"),
+                  "": "FAILED" if r["flagged"] else ""} for r in whole]
+        click.echo(pd.DataFrame(table).to_markdown(index=False, floatfmt=".3g"))
+    if any(c["rel_error"] > 0.01 for c in checks) or any(r["flagged"] for r in parts + whole):
         sys.exit(1)
 
 

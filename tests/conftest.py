@@ -48,6 +48,29 @@ force_N = [10, 0, -100]
 radius_mm = 8
 """
 
+#: edits of PLATE that give it what the bus panel has beside edge clamps and pads, at toy size: a window
+#: (a hole) whose edge is simply supported (held in w only, as the bus panel's window locators), a
+#: simply supported edge (its jig rail) and a background pressure (its own weight). Tests of a property
+#: that such supports or loads could break (the oracle against a direct solve, the certified bounds)
+#: run on this plate instead of the full bus panel's 307k DOFs.
+WINDOWED = (
+    ("outline_mm = [[0, 0], [400, 0], [400, 200], [0, 200]]",
+     '[[geometry.shapes]]\nrectangle_mm = [0, 0, 400, 200]\n'
+     '[[geometry.shapes]]\nop = "difference"\nrectangle_mm = [20, 70, 80, 130]'),
+    ("[fixtures]",
+     '[[supports]]\nname = "window locator"\nhole = 0\nkind = "simple"\n\n'
+     '[[supports]]\nname = "top rail"\nsegment_mm = [[0, 200], [400, 200]]\nkind = "simple"\n\n'
+     '[[loads]]\nkind = "pressure"\npressure_Pa = -200\n\n[fixtures]'),
+)
+
+
+def windowed(text: str = PLATE) -> str:
+    """``text`` (PLATE or an edit of it) with the :data:`WINDOWED` edits."""
+    for old, new in WINDOWED:
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
 
 @pytest.fixture
 def plate_toml(tmp_path):

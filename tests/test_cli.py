@@ -51,17 +51,38 @@ def _refuse(name):
     raise ValueError(f"not JSON: {name}")
 
 
-@pytest.mark.slow
-def test_validate_parts(capsys):
-    """A w/t line per catalog fixture case, none beyond 0.5 (solves every part: minutes)."""
-    rows = json.loads(run(capsys, "validate", "--json"), parse_constant=_refuse)  # strict JSON
+def test_validate_parts(capsys, monkeypatch):
+    """The parts' lines of `fixbench validate` for the cases --part names (the main job, `make bench`,
+    runs them on every part: minutes to solve the full parts directly): w/t on a small case and a
+    full one, then the full part's oracle and mesh rows; a row beyond its limit exits 1."""
+    argv = ("validate", "--json", "--part", "fan_small", "--part", "fan")
+    rows = json.loads(run(capsys, *argv), parse_constant=_refuse)  # strict JSON
     parts = {r["name"]: r for r in rows if r.get("check") == "w/t"}
-    assert set(parts) == {"bus_panel", "bus_panel_small", "fan", "fan_small", "wing_panel",
-                          "wing_panel_small", "wing_panel_pairs", "wing_panel_pairs_small",
-                          "wing_panel_pads_small", "wing_spar", "wing_spar_small"}
+    assert set(parts) == {"fan", "fan_small"}
     for r in parts.values():
-        assert r["w_over_t"] is not None and r["w_over_t"] <= r["limit"] == 0.5 and not r["flagged"]
-    assert parts["wing_spar"]["w_over_t"] == 0 < parts["wing_spar_small"]["w_over_t"]  # only the small one has weight
+        assert 0 < r["w_over_t"] <= r["limit"] == 0.5 and not r["flagged"]
+    assert parts["fan"]["layouts"] == "shipped reference" and parts["fan_small"]["layouts"] == "proven optimum"
+    whole = {r["check"]: r for r in rows if r.get("check") in ("oracle", "mesh")}
+    assert [r["name"] for r in whole.values()] == ["fan", "fan"]
+    assert whole["oracle"]["worst_rel_difference"] <= whole["oracle"]["limit"] == 1e-9
+    assert 0 < abs(whole["mesh"]["change"]) <= whole["mesh"]["limit"] == 0.02
+    assert not any(r["flagged"] for r in whole.values())
+    from fixbench.cases import analytic, part_checks
+
+    monkeypatch.setattr(analytic, "validate", lambda: [])  # the analytic plates: test_validate_json
+    monkeypatch.setattr(part_checks, "MESH_TOL", abs(whole["mesh"]["change"]) / 2)
+    with pytest.raises(SystemExit) as stop:
+        main(list(argv))
+    assert stop.value.code == 1 and json.loads(capsys.readouterr().out)[-1]["flagged"]
+
+
+def test_validate_names_every_full_part_and_refuses_an_unknown_one(capsys):
+    from fixbench.cases.part_checks import full_parts
+
+    assert full_parts() == ["bus_panel", "fan", "wing_panel", "wing_panel_pairs", "wing_spar"]
+    assert main(["validate", "--part", "wing_panel_tiny"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--part: wing_panel_tiny: is not a catalog case with fixtures" in err
 
 
 def test_cases_json(capsys):
