@@ -52,7 +52,7 @@ from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.rewards import degenerate_share, gaussian
 from fixbench.solvers.base import at_least, random_layouts, require
-from fixbench.solvers.exact import ExactConfig
+from fixbench.solvers.math_programming.exact import ExactConfig
 
 
 @dataclass(frozen=True)

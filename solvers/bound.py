@@ -18,7 +18,7 @@ f . K_X f = c0 - d0_X^T C_XX^-1 d0_X); adding pads only shrinks it: K_R <= K_S <
 the optimum; at any time min(incumbent, least open bound) is a certified lower bound.
 
 Written by hand: no library does branch-and-bound over this bound (the MILP route through HiGHS,
-solvers/exact.py, needs a pad-force bound; docs/references.md compares the two).
+solvers/math_programming/exact.py, needs a pad-force bound; docs/references.md compares the two).
 Floating point: every node bound is multiplied by (1 - ``safety``) against round-off in its Schur
 solves (the oracle matches a direct solve to about 1e-13); a Schur block that is not numerically
 positive definite gives the bound 0.

@@ -29,7 +29,7 @@ with the others fixed and takes the lowest. What a planner may choose, each an a
 
 Written by hand: coordinate descent over discrete action sets with these stopping rules is a dozen
 lines in no maintained library (scipy and pymoo optimise continuous or whole-vector problems).
-``nashq``'s compiled kernel (:func:`fixbench.solvers.marl_engine._best_response`) runs this same
+``nashq``'s compiled kernel (:func:`fixbench.solvers.learners.marl_engine._best_response`) runs this same
 descent in numba; ``tests/test_descent.py`` checks it against :func:`descend` to the bit.
 """
 

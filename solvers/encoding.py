@@ -8,20 +8,20 @@ Tasks: :func:`task_features` (T, F), ``Problem.features`` scaled over the proble
 
 - ``scale="min-max"``: each column to [0, 1], ``(f - min) / (max - min)``; a column constant over the
   tasks -> 0.5 (the middle, not a 0 that would look like the lowest task). Every column is kept, so the
-  width is the case's feature count. Users: ``vdn`` (solvers/vdn.py) and ``nashq`` / ``iql``
-  (:class:`fixbench.solvers.marl_engine.Learner`): networks whose first layer wants inputs of one range.
+  width is the case's feature count. Users: ``vdn`` (solvers/learners/vdn.py) and ``nashq`` / ``iql``
+  (:class:`fixbench.solvers.learners.marl_engine.Learner`): networks whose first layer wants inputs of one range.
 - ``scale="spread"``: each column divided by its spread over the tasks, ``f / (max - min)``, not shifted
   (a column's values span exactly 1 wherever they lie); constant columns dropped (all constant: one zero
   column). Users: what measures distances between tasks or fits a kernel on them, where a shift does not
   matter and a constant column would only add a length scale to fit: the rounds bandits
-  (solvers/bandit.py: ``surrogate-ts`` centres them, ``gp-ucb``'s feature kernel and its local windows),
+  (solvers/bandits/bandit.py: ``surrogate-ts`` centres them, ``gp-ucb``'s feature kernel and its local windows),
   and the nearest-task search of solvers/transfer.py (the warm starts of the search planners with a
   ``transfer`` setting: ``greedy``, ``local``, ``ga``, ``pso``, ``optuna``, the bandits; and every
   planner's held-out layouts left at -1, filled from the nearest training task).
   Distances between tasks are the same under both scalings.
 - :func:`min_max_loc_scale`: the same min-max as (loc, scale) in a chosen dtype, for a normaliser that
   takes them, ``(f - loc) / scale`` (a constant column's scale is 1, so it becomes 0, not 0.5). Users:
-  the TorchRL learners ``mappo``, ``ippo`` and ``qmix`` (solvers/library_learners.py), deliberately: their
+  the TorchRL learners ``mappo``, ``ippo`` and ``qmix`` (solvers/learners/torchrl_learner.py), deliberately: their
   env (cases/env.py, also the BenchMARL task) emits the raw features, and TorchRL's ``ObservationNorm``
   normalises them in float32 inside TorchRL's pipeline (qmix's mixer state is that observation too).
 
@@ -46,7 +46,7 @@ centroid) in an interval of the candidates' bounding box (an axis without extent
   here places all robots at once (one env step), so it has no partial layouts, that flag would be a
   constant 1, and none of them adds it.
 
-Case-based retrieval (solvers/cbr.py ``task_features``: a case's part, material and task) encodes a
+Case-based retrieval (solvers/knowledge/cbr.py ``task_features``: a case's part, material and task) encodes a
 different thing, one case of a library against another, and stays there.
 """
 

@@ -169,8 +169,8 @@ def _update_floor(case: str, agents: int | None, threads: int, repeat: int, seed
     from torch.utils.flop_counter import FlopCounterMode
 
     from fixbench.bench.analysis.perf import median_time
-    from fixbench.solvers.marl_engine import Learner, Update
-    from fixbench.solvers.nashq import NashQConfig
+    from fixbench.solvers.learners.marl_engine import Learner, Update
+    from fixbench.solvers.learners.nashq import NashQConfig
 
     problem = load_problem(case, agents=agents)
     cfg = NashQConfig()

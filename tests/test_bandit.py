@@ -1,4 +1,4 @@
-"""The rounds loop of the bandits (solvers/bandit.py), on a model-free run: exact budget, round 0,
+"""The rounds loop of the bandits (solvers/bandits/bandit.py), on a model-free run: exact budget, round 0,
 the batch-size rule, task after task within a round, same seed -> same bits, no sample on a held-out
 task, refusals. surrogate-ts and gp-ucb run on this loop (their own tests check their models)."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit
+from fixbench.solvers.bandits.bandit import BanditConfig, BanditRun, RoundsBandit
 from fixbench.solvers.base import PlannerError, TracedEvaluator, random_layouts
 from fixbench.solvers.transfer import nearest_tasks
 

@@ -11,7 +11,7 @@ from fixbench.cases import load_problem
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import load_case_spec
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.cbr import CaseBasedReasoning, build_library
+from fixbench.solvers.knowledge.cbr import CaseBasedReasoning, build_library
 from fixbench.solvers.registry import get
 
 BUILD_BUDGET = 100  # samples per task when building the library (and for the reference solves)
@@ -146,7 +146,7 @@ def test_bootstrap_library_is_built_once_into_the_runs_cache(tmp_path, monkeypat
     instead of solving every task again (the same library); a damaged entry is rebuilt, not trusted;
     without a cache nothing is written."""
     from fixbench.cases import cache
-    from fixbench.solvers import cbr
+    from fixbench.solvers.knowledge import cbr
 
     monkeypatch.setenv(cache.ENV, "off")
     plain = cbr.bootstrap_library(("fan_small",), 3)

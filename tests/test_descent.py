@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fixbench.solvers.descent import descend, table_scores
-from fixbench.solvers.marl_engine import _best_response, _q_row
+from fixbench.solvers.learners.marl_engine import _best_response, _q_row
 
 STOPS = ("sweep", "others", "all")
 RULES = [(ties, stop) for ties in ("first", "stay") for stop in STOPS]

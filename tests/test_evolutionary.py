@@ -8,8 +8,9 @@ import pytest
 from fixbench.cases import load_case_spec, load_problem
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.evolutionary import GeneticPlanner, SwarmPlanner
-from fixbench.solvers.random_search import RandomSearch
+from fixbench.solvers.search.ga import GeneticPlanner
+from fixbench.solvers.search.pso import SwarmPlanner
+from fixbench.solvers.search.random_search import RandomSearch
 
 PLANNERS = {"ga": GeneticPlanner, "pso": SwarmPlanner}
 

@@ -11,8 +11,8 @@ from gpytorch.means import ZeroMean
 
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
+from fixbench.solvers.bandits.gp_bandit import GPUCB, LocalGP, gp_modules, to_hyper
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.gp_bandit import GPUCB, LocalGP, gp_modules, to_hyper
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The Q-learners' shared pieces (solvers/learners.py) keep their contracts: the config fields and
+"""The Q-learners' shared pieces (solvers/learners/common.py) keep their contracts: the config fields and
 defaults committed runs hash, the budget as whole episodes, the two epsilon schedules in their units,
 the training split, the replay ring, the nashq engine's inputs from solvers/encoding.py,
 and on every run: the same seed gives the same bits, the budget is spent exactly, held-out tasks get
@@ -18,7 +18,7 @@ from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError, TracedEvaluator
 from fixbench.solvers.encoding import pad_coordinates, task_features
-from fixbench.solvers.learners import (
+from fixbench.solvers.learners.common import (
     LearnerConfig,
     QLearnerConfig,
     Replay,
@@ -28,11 +28,11 @@ from fixbench.solvers.learners import (
     train_ids,
     train_split,
 )
-from fixbench.solvers.library_learners import PPOConfig
-from fixbench.solvers.marl_engine import Learner
-from fixbench.solvers.nashq import NashQConfig
+from fixbench.solvers.learners.mappo import PPOConfig
+from fixbench.solvers.learners.marl_engine import Learner
+from fixbench.solvers.learners.nashq import NashQConfig
+from fixbench.solvers.learners.vdn import VDNConfig
 from fixbench.solvers.registry import get
-from fixbench.solvers.vdn import VDNConfig
 
 LEARNERS = ("nashq", "iql", "vdn")
 #: every learner, one position a step and several (the last step of an episode shorter)

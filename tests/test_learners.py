@@ -9,8 +9,8 @@ import pytest
 
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
-from fixbench.solvers.random_search import RandomSearch
 from fixbench.solvers.registry import get
+from fixbench.solvers.search.random_search import RandomSearch
 
 SEEDS = range(3)
 #: measured (mean max |u| over seeds 0-2, um): random 41.8; surrogate-ts 18.7, gp-ucb 18.1, vdn 18.7

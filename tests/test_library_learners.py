@@ -1,6 +1,6 @@
-"""MAPPO, IPPO and QMIX from TorchRL's components (solvers/library_learners.py): every env step a counted
-sample, the budget spent exactly, the same bits from the same seed, no sample on a held-out task, and better
-than random search with the same budget on wing_panel_small (100 samples a position)."""
+"""MAPPO, IPPO and QMIX from TorchRL's components (solvers/learners/mappo.py, ippo.py, qmix.py): every env
+step a counted sample, the budget spent exactly, the same bits from the same seed, no sample on a held-out
+task, and better than random search with the same budget on wing_panel_small (100 samples a position)."""
 
 from __future__ import annotations
 

@@ -12,8 +12,8 @@ import torch
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import Effector
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.marl_engine import Learner as _Learner
-from fixbench.solvers.marl_engine import StackedQ, Update, _q_row, load_weights
+from fixbench.solvers.learners.marl_engine import Learner as _Learner
+from fixbench.solvers.learners.marl_engine import StackedQ, Update, _q_row, load_weights
 from fixbench.solvers.registry import get
 
 SMALL = dict(episodes=3, hidden=32)
@@ -288,7 +288,7 @@ def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
     """What runs on a GPU (torch's AdamW + lerp; weights copied to the host for best response), run here
     on the CPU: the same update as the fused pass to float32 round-off, and a whole short training
     through it gives valid layouts with every best response still computed."""
-    from fixbench.solvers import marl_engine
+    from fixbench.solvers.learners import marl_engine
 
     g = torch.Generator().manual_seed(1)
     nets = [StackedQ(3, 6, 16, 9, torch.Generator().manual_seed(2)) for _ in range(2)]
@@ -319,7 +319,7 @@ def test_gpu_paths_on_the_cpu_agree_with_the_fused_ones(problem, monkeypatch):
         copies.append(1)
         return [a.copy() for a in w], [a.copy() for a in b]
 
-    monkeypatch.setattr("fixbench.solvers.nashq.Update", GpuLikeUpdate)
+    monkeypatch.setattr("fixbench.solvers.learners.nashq.Update", GpuLikeUpdate)
     monkeypatch.setattr(marl_engine.Learner, "_host_weights", copied)
     r = get("nashq")(**SMALL).solve(problem, None, seed=0)
     problem.check_layouts(r.layouts)

@@ -33,6 +33,12 @@ def test_wheel_has_one_top_level_package_and_its_data(wheel):
                    "fixbench/bench/matrices/default.toml", "fixbench/bench/matrices/paper.toml",
                    "fixbench/bench/cli_common.py"):
         assert needed in names, needed
+    # every module of the three folders, subpackages included (pyproject.toml lists the packages one by one),
+    # and none the tree no longer has (a stale build/ would ship a moved module at its old path)
+    tree = {f"fixbench/{folder}/{p.relative_to(ROOT / folder).as_posix()}" for folder in ("cases", "solvers", "bench")
+            for p in (ROOT / folder).rglob("*.py") if "__pycache__" not in p.parts}
+    packaged = {n for n in names if n.endswith(".py") and n.split("/")[1:2] in (["cases"], ["solvers"], ["bench"])}
+    assert packaged == tree, f"missing: {sorted(tree - packaged)}; not in the tree: {sorted(packaged - tree)}"
     assert not [n for n in names if "studies" in n.split("/")], "studies/ are the repository's scripts, not the package"
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))

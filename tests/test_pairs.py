@@ -14,7 +14,7 @@ from fixbench.cases import FixbenchError
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.spec import parse_case
 from fixbench.solvers import available, get
-from fixbench.solvers.marl_engine import Learner, _q_row
+from fixbench.solvers.learners.marl_engine import Learner, _q_row
 
 PAIR = 'fixtures_per_agent = 2\neffector = "pair"\nspan_mm = 150\n'
 IDLE = "idle = true\npads = 1\n"

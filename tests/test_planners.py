@@ -18,7 +18,7 @@ import pytest
 from fixbench.cases import FixbenchError, load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers import PlannerError, available, get, register
-from fixbench.solvers.random_search import RandomSearch
+from fixbench.solvers.search.random_search import RandomSearch
 
 BUDGET = 4_000  # covers exact enumeration of the problem below (42 x 42 layouts x 2 tasks)
 
@@ -110,7 +110,7 @@ def test_registry_refuses_a_builtin_name_before_the_builtin_is_imported():
             "try:\n    register(Impostor)\nexcept Exception as e:\n    print(e)\n"
             "import sys\nprint('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert "'nashq' is taken by the built-in planner in fixbench.solvers.nashq" in out
+    assert "'nashq' is taken by the built-in planner fixbench.solvers.learners.nashq:NashQ" in out
     assert out.strip().endswith("False")
 
 

@@ -19,7 +19,7 @@ from pymoo.optimize import minimize
 
 from fixbench.cases import load_problem
 from fixbench.solvers.base import Planner, PlannerError, TracedEvaluator
-from fixbench.solvers.pymoo_problem import LayoutProblem
+from fixbench.solvers.search.pymoo_problem import LayoutProblem
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "planners.md"
 

@@ -7,8 +7,8 @@ import pytest
 
 from fixbench.cases import load_problem
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.qp import QPPlanner
-from fixbench.solvers.random_search import RandomSearch
+from fixbench.solvers.math_programming.qp import QPPlanner
+from fixbench.solvers.search.random_search import RandomSearch
 
 READS = 3 * 84  # fan_small: 84 candidates, bending (1 row) + membrane (2 rows)
 FREE = 2 * 6  # one unconstrained response per field and task

@@ -13,7 +13,7 @@ from fixbench.cases.problem import Evaluator, Problem
 from fixbench.cases.spec import parse_case
 from fixbench.solvers import get
 from fixbench.solvers.base import random_layouts
-from fixbench.solvers.rules import Rules, load_point, support_distance
+from fixbench.solvers.knowledge.rules import Rules, load_point, support_distance
 
 
 def _plate(*edits: tuple[str, str]) -> Problem:

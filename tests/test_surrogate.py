@@ -8,8 +8,8 @@ import torch
 
 from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
+from fixbench.solvers.bandits.surrogate import Ensemble, Responder, SurrogateTS
 from fixbench.solvers.base import PlannerError
-from fixbench.solvers.surrogate import Ensemble, Responder, SurrogateTS
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from fixbench.cases import load_case_spec
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import PlannerError
 from fixbench.solvers.encoding import task_features
-from fixbench.solvers.vdn import VDN, Actions, SharedQ, greedy, q_tot
+from fixbench.solvers.learners.vdn import VDN, Actions, SharedQ, greedy, q_tot
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ are. ``planners`` may be empty (exchange rounds only).
 
 2. **Neighbour exchange.** Rounds over the tasks, forward then backward: each task tries the
    current best layouts of its ``exchange`` nearest tasks (by task features) and its own, and a
-   local search (:func:`fixbench.solvers.local.local_search`, ``polish_samples`` layouts) polishes the
+   local search (:func:`fixbench.solvers.search.local.local_search`, ``polish_samples`` layouts) polishes the
    best of them. A better layout found on a task is passed on within the same round. Rounds stop
    when one brings no improvement (relative 1e-9) or after ``max_rounds``.
 
@@ -252,8 +252,8 @@ def build(case: str, material: str | None = None, agents: int | None = None, eff
     """Run the portfolio on a catalog case; returns the reference record (not yet written)."""
     from fixbench.solvers.base import random_layouts
     from fixbench.solvers.encoding import task_features
-    from fixbench.solvers.local import LocalConfig, local_search
     from fixbench.solvers.registry import get
+    from fixbench.solvers.search.local import LocalConfig, local_search
     from fixbench.solvers.transfer import nearest_tasks
 
     effort = effort or Portfolio()

@@ -87,7 +87,6 @@ import shapely
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import CaseSpec, Task
 from fixbench.solvers.base import Planner, PlannerConfig, TracedEvaluator, require
-from fixbench.solvers.registry import register
 
 
 @dataclass(frozen=True)
@@ -136,7 +135,6 @@ def support_distance(spec: CaseSpec) -> np.ndarray:
     return np.min([shapely.distance(g, pts) for g in geoms], axis=0)
 
 
-@register
 class Rules(Planner):
     name = "rules"
     family = "rules"

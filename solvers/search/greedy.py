@@ -62,7 +62,6 @@ import numpy as np
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts
 from fixbench.solvers.descent import descend
-from fixbench.solvers.registry import register
 
 
 @dataclass(frozen=True)
@@ -90,7 +89,6 @@ class GreedyConfig(PlannerConfig):
         at_least(self, 0, "soft_power", "transfer")
 
 
-@register
 class Greedy(Planner):
     name = "greedy"
     family = "local-search"

@@ -2,7 +2,7 @@
 
 Read top to bottom (cleanrl style): hyper-parameters, the ensemble, its best response, the run (fit,
 propose, act on held-out tasks). The rounds loop itself (data, round 0, batch size, warm starts,
-repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandit`'s, shared with ``gp-ucb``.
+repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandits.bandit`'s, shared with ``gp-ucb``.
 
 The model. One regression, shared by every task, of y = log(max |u|) on x = [the task's features
 (:func:`fixbench.solvers.encoding.task_features`, scaled by their spread, centred), the layout's pad coordinates
@@ -28,7 +28,7 @@ and one uniform random layout. Best response is cheap because the first layer is
 slot's contribution W1 x_i is tabulated once per retraining for all of its actions, so one agent's
 response to the others is a table lookup, an addition and the last two layers over its actions.
 A layout already evaluated on the task (or proposed twice in a batch) is replaced by a random
-neighbour (:func:`fixbench.solvers.bandit.move_repeats`).
+neighbour (:func:`fixbench.solvers.bandits.bandit.move_repeats`).
 
 Rounds, not task by task: every round gives every training task a batch of ``batch`` samples
 (larger when the budget is large, so that there are at most ``max_rounds`` retrainings), then the
@@ -64,11 +64,10 @@ import numpy as np
 import torch
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit
+from fixbench.solvers.bandits.bandit import BanditConfig, BanditRun, RoundsBandit
 from fixbench.solvers.base import TracedEvaluator, Training, at_least, require
 from fixbench.solvers.descent import descend
 from fixbench.solvers.encoding import pad_coordinates
-from fixbench.solvers.registry import register
 
 
 # ---------------------------------------------------------------------------------------------
@@ -198,7 +197,7 @@ class Responder:
 # the run: bootstrap weights, retraining, Thompson samples, the ensemble mean on held-out tasks
 # ---------------------------------------------------------------------------------------------
 class ThompsonRun(BanditRun):
-    """One run of ``surrogate-ts`` on the rounds loop (:class:`fixbench.solvers.bandit.BanditRun`)."""
+    """One run of ``surrogate-ts`` on the rounds loop (:class:`fixbench.solvers.bandits.bandit.BanditRun`)."""
 
     def __init__(self, cfg: SurrogateConfig, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator):
         super().__init__(cfg, problem, ev, rng)
@@ -281,7 +280,6 @@ class ThompsonRun(BanditRun):
 # ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
-@register
 class SurrogateTS(RoundsBandit):
     name = "surrogate-ts"
     family = "bandit"

@@ -13,7 +13,7 @@ far). Layouts already evaluated on the task are never paid for twice. "Nearest" 
 actions in ``Problem.points``: for a robot that places m pads, its pads' coordinates together.
 
 Fitness: the soft max of |u| (power mean over the measurement points, ``soft_power``; why: see
-:mod:`fixbench.solvers.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is
+:mod:`fixbench.solvers.search.greedy`), the max itself with ``soft_power = 0``. The returned layout of a task is
 the one with the lowest *true* max evaluated on it.
 
 Start: with ``transfer`` k > 0 (per-task mode), tasks are solved in order and each starts from the
@@ -39,7 +39,6 @@ from scipy.spatial import cKDTree
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts, require
-from fixbench.solvers.registry import register
 
 
 @dataclass(frozen=True)
@@ -95,7 +94,6 @@ class LocalConfig(PlannerConfig):
         require(self, "start_share", 0 <= self.start_share <= 1, "in [0, 1]")
 
 
-@register
 class LocalSearch(Planner):
     name = "local"
     family = "local-search"

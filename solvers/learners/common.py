@@ -1,5 +1,5 @@
-"""What the learners (``nashq``, ``iql``: solvers/nashq.py; ``vdn``: solvers/vdn.py; ``mappo``, ``ippo`` in
-part: solvers/library_learners.py) share.
+"""What the learners (``nashq``, ``iql``, ``vdn``; ``mappo``, ``ippo``, ``qmix`` in part, through
+solvers/learners/torchrl_learner.py) share.
 
 A learner plays the game of docs/protocol.md#the-game on the PettingZoo env or on the same game batched
 over positions (:class:`~fixbench.cases.env.PositionBatchEnv`): one episode is one pass over the
@@ -7,7 +7,7 @@ training tasks, one position answered one counted sample. Around its own network
 learner does the same things, and they live here once:
 
 - :class:`LearnerConfig`: the hyper-parameters with the same name, meaning and default in every
-  learner (``mappo``/``ippo`` too: solvers/library_learners.py), and :class:`QLearnerConfig`, what the
+  learner (``mappo``/``ippo`` too: solvers/learners/mappo.py), and :class:`QLearnerConfig`, what the
   Q-learners add (exploration, replay); a learner's config subclasses one and adds its own,
   ``eps_decay`` among them: its unit is the learner's, see the two schedules below;
 - the split: :func:`train_split` (the held-out track's tasks, else :func:`train_ids` from the config),

@@ -2,7 +2,7 @@
 
 One categorical parameter per agent, its position in that agent's own candidate set: categorical,
 not an integer range, because the candidate order carries no distance (a grid is numbered row by
-row, so index i + 1 can be across the part; see :mod:`fixbench.solvers.evolutionary`). TPE models the
+row, so index i + 1 can be across the part; see :mod:`fixbench.solvers.search.pso`). TPE models the
 good and the bad layouts seen so far by per-parameter (``multivariate``: joint) Parzen densities and
 proposes the layout that maximises their ratio.
 
@@ -47,7 +47,6 @@ import optuna
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least
-from fixbench.solvers.registry import register
 
 ENUMERATION_BATCH = 4096  # layouts a counted call when an allowance covers the joint space
 
@@ -89,7 +88,6 @@ class OptunaConfig(PlannerConfig):
         at_least(self, 0, "n_startup_trials", "soft_power", "transfer")
 
 
-@register
 class OptunaTPE(Planner):
     name = "optuna"
     family = "bayesian-optimisation"

@@ -10,7 +10,7 @@ inputs), the paper's strongest variant. The cooperative MARL reference beside ``
 Read top to bottom (cleanrl style): hyper-parameters, the shared Q-network, the training loop on the
 game's env batched over positions (:class:`fixbench.cases.env.PositionBatchEnv`), the greedy policy.
 What every learner shares (the split, the budget as episodes, the replay, the step record, the
-``info`` keys) is in :mod:`fixbench.solvers.learners`.
+``info`` keys) is in :mod:`fixbench.solvers.learners.common`.
 
 The game (docs/protocol.md#the-game): each step shows every agent one task (its feature vector); each
 agent picks one action of its own set; the layout is evaluated once on the counted oracle (one sample
@@ -64,7 +64,7 @@ from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import LogScale
 from fixbench.solvers.base import Planner, TracedEvaluator, at_least, require
 from fixbench.solvers.encoding import action_inputs, task_features
-from fixbench.solvers.learners import (
+from fixbench.solvers.learners.common import (
     QLearnerConfig,
     Replay,
     StepRecord,
@@ -81,7 +81,6 @@ from fixbench.solvers.learners import (
     train_split,
     training_env,
 )
-from fixbench.solvers.registry import register
 from fixbench.solvers.torch_run import torch_run
 
 
@@ -212,7 +211,6 @@ def q_tot(q: SharedQ, acts: Actions, feats: torch.Tensor, tasks: torch.Tensor, a
 # ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
-@register
 class VDN(Planner):
     name = "vdn"
     family = "marl"

@@ -40,7 +40,7 @@ its ``pool`` nearest candidates to that centroid are what polishing may swap in.
 is coordinate descent: evaluate the rounded layout, then, agent by agent, every swap to an
 unseen pool candidate, keep the best, until a sweep brings no gain or the task's polish budget
 is spent. What the descent leaves of that budget goes to a local search in the plane from its
-layout (:func:`fixbench.solvers.local.local_search` with the ``local`` planner's defaults, over
+layout (:func:`fixbench.solvers.search.local.local_search` with the ``local`` planner's defaults, over
 every candidate, screened out or not; its start costs a sample again): a relaxation is solved to
 find a start, and a planner that stopped at the pools' optimum would leave most of its samples
 unspent (on the full wing panel at 100 samples a task it spent 21,102 of 50,000). The polish
@@ -87,8 +87,7 @@ from fixbench.solvers.base import (
     require,
     require_budget,
 )
-from fixbench.solvers.local import revise, revise_budget
-from fixbench.solvers.registry import register
+from fixbench.solvers.search.local import revise, revise_budget
 
 FIELDS = ("bending", "membrane")
 
@@ -158,7 +157,6 @@ class QPConfig(PlannerConfig):
         at_least(self, -1, "polish_samples")
 
 
-@register
 class QPPlanner(Planner):
     name = "qp"
     family = "qp"

@@ -1,10 +1,11 @@
 """Nash-Q multi-robot fixture planner (MRFP) and its independent-learner ablation, in PyTorch.
 
 Read top to bottom (cleanrl style): hyper-parameters, the training loop on the env, the
-greedy policy, the two planners. The engine that makes it fast (batched Q-networks, fused optimiser,
-compiled best response) lives beside it in :mod:`fixbench.solvers.marl_engine`; what every learner
+greedy policy, the planner (``iql`` is the same planner without the joint inputs, a class of its own in
+:mod:`fixbench.solvers.learners.iql`). The engine that makes it fast (batched Q-networks, fused optimiser,
+compiled best response) lives beside it in :mod:`fixbench.solvers.learners.marl_engine`; what every learner
 shares (the split, the budget as episodes, the replay, the step record, the ``info`` keys) in
-:mod:`fixbench.solvers.learners`.
+:mod:`fixbench.solvers.learners.common`.
 
 The game (docs/protocol.md#the-game): each step shows the agents one task (its feature vector); each agent
 picks one candidate of its own set; the layout is evaluated once on the counted oracle (one sample
@@ -35,8 +36,8 @@ the joint action after ``max_sweeps`` sweeps is read off it). Exploring agents (
 probability epsilon, independently) play a uniform random action and the greedy agents
 best-respond to them. Iterations and convergence are reported in ``info``.
 
-``iql`` (the reference code's independent learners): the same networks over the task features
-only; each agent acts on its own argmax.
+``iql`` (the reference code's independent learners, :mod:`fixbench.solvers.learners.iql`): the same
+networks over the task features only; each agent acts on its own argmax.
 
 Budget: one sample per position answered. The run trains for ``episodes`` passes over the training tasks, or,
 if the budget is smaller, for as many full episodes as fit (best effort; ``info["episodes_run"]``);
@@ -65,7 +66,7 @@ import torch
 from fixbench.cases.problem import Problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD, LogScale
 from fixbench.solvers.base import Planner, PlannerError, TracedEvaluator, at_least, require
-from fixbench.solvers.learners import (
+from fixbench.solvers.learners.common import (
     QLearnerConfig,
     Replay,
     StepRecord,
@@ -82,8 +83,7 @@ from fixbench.solvers.learners import (
     train_split,
     training_env,
 )
-from fixbench.solvers.marl_engine import Learner, Update
-from fixbench.solvers.registry import register
+from fixbench.solvers.learners.marl_engine import Learner, Update
 from fixbench.solvers.torch_run import torch_run
 
 #: the learners' rewards (docs/protocol.md#reward-functions)
@@ -91,7 +91,7 @@ REWARDS = ("scaled", "gaussian", "bell")
 
 
 # ---------------------------------------------------------------------------------------------
-# hyper-parameters (and those every Q-learner has: fixbench.solvers.learners.QLearnerConfig)
+# hyper-parameters (and those every Q-learner has: fixbench.solvers.learners.common.QLearnerConfig)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class NashQConfig(QLearnerConfig):
@@ -167,7 +167,7 @@ class NashQConfig(QLearnerConfig):
 # ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
-class _QPlanner(Planner):
+class QPlanner(Planner):
     family = "marl"
     Config = NashQConfig
     modes = ("per-task",)
@@ -293,15 +293,7 @@ class _QPlanner(Planner):
                 "episode_times": ep_times}
 
 
-@register
-class NashQ(_QPlanner):
+class NashQ(QPlanner):
     name = "nashq"
     description = "Nash-Q MRFP: per-agent joint-action Q-networks, person-by-person equilibrium"
     joint = True
-
-
-@register
-class IQL(_QPlanner):
-    name = "iql"
-    description = "independent Q-learners of the reference code (ablation of nashq)"
-    joint = False

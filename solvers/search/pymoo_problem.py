@@ -1,8 +1,8 @@
 """A fixture-planning problem as a pymoo ``Problem``: run any pymoo algorithm on it, every
 evaluation counted.
 
-The layouts as pymoo variables (:class:`Encoding`; ``ga`` and ``pso``, :mod:`fixbench.solvers.evolutionary`,
-take theirs from here):
+The layouts as pymoo variables (:class:`Encoding`; ``ga`` and ``pso``, :mod:`fixbench.solvers.search.ga` and
+:mod:`fixbench.solvers.search.pso`, take theirs from here):
 
 - :func:`integer_encoding`: one integer variable per agent, the position in that agent's own
   candidate set (``0 .. len(set) - 1``);
@@ -75,7 +75,7 @@ def integer_encoding(problem: Problem) -> Encoding:
 def plane_encoding(problem: Problem) -> Encoding:
     """A point per action in the plane (:func:`_centre_and_spread`), bounded by the agent's box padded
     by half the median nearest-neighbour spacing of all candidates, snapped to the agent's nearest
-    action with a KD-tree (why the plane and not an index: :mod:`fixbench.solvers.evolutionary`)."""
+    action with a KD-tree (why the plane and not an index: :mod:`fixbench.solvers.search.pso`)."""
     sets = problem.action_sets
     where = _centre_and_spread(problem.points)
     points = [where[s] for s in sets]  # an action as 2 m numbers (one pad: its (x, y))

@@ -1,6 +1,6 @@
-"""The performance engine of :mod:`fixbench.solvers.nashq`: batched Q-networks, a fused optimiser
+"""The performance engine of :mod:`fixbench.solvers.learners.nashq`: batched Q-networks, a fused optimiser
 and compiled best-response kernels. The algorithm (hyper-parameters, training loop, greedy policy)
-reads top to bottom in ``solvers/nashq.py``; this module only makes it fast, with every shortcut
+reads top to bottom in ``solvers/learners/nashq.py``; this module only makes it fast, with every shortcut
 tested against the plain computation it replaces (``tests/test_nashq.py``).
 
 Speed (``python -m studies.marl speed``; times per phase in the planner's ``info``): the N
@@ -266,7 +266,7 @@ def _argmax_q(ws, cols, n_opts, i, s_r, jp_r, others, joint, x):
 
 @numba.njit(cache=True)
 def _best_response(ws, cols, n_opts, s, pos, centre, others, fixed, fixed_actions, max_sweeps, joint):
-    """Greedy joint actions of a batch of states; see ``Learner.greedy`` and :mod:`fixbench.solvers.nashq`.
+    """Greedy joint actions of a batch of states; see ``Learner.greedy`` and :mod:`fixbench.solvers.learners.nashq`.
 
     Start: every free agent's argmax with the others at their sets' centres (fixed agents where they
     are). Then Gauss-Seidel sweeps (joint learners only): each agent that needs a turn takes its argmax

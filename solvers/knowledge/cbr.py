@@ -41,7 +41,7 @@ agents than stored positions, the agents left over take, one by one, the candida
 farthest from every pad placed so far (spread); with fewer, the worst-matched positions are dropped.
 
 **Revise** (counted): the k distinct adaptations are evaluated and a local search in the plane
-(:func:`fixbench.solvers.local.local_search`, the ``local`` planner's defaults) goes on from the best
+(:func:`fixbench.solvers.search.local.local_search`, the ``local`` planner's defaults) goes on from the best
 of them with what is left of the task's share of the budget: a retrieved plan is a start, and a
 case-based planner that stopped there would leave most of its samples unspent. ``polish_samples``
 caps the samples a task may spend (-1: its whole share; with an unlimited budget,
@@ -78,8 +78,8 @@ from fixbench.cases import cache
 from fixbench.cases.files import write_text_atomic
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
-from fixbench.solvers.local import revise, revise_budget
-from fixbench.solvers.registry import available, get, register
+from fixbench.solvers.registry import available, get
+from fixbench.solvers.search.local import revise, revise_budget
 
 TASK_DIMS = 4
 _MEMORY: dict[tuple, dict] = {}  # the in-memory library of this process (one bootstrap setting)
@@ -281,7 +281,7 @@ def load_library(path: str | Path) -> dict:
     path = Path(path).expanduser()
     if not path.is_file():
         raise PlannerError(f"planner 'cbr': no case library at {path} (build one with "
-                           "fixbench.solvers.cbr.build_library, or set library=PATH)")
+                           "fixbench.solvers.knowledge.cbr.build_library, or set library=PATH)")
     try:
         library = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -327,7 +327,6 @@ def adapt(problem: Problem, entry: dict, normalised: bool) -> np.ndarray:
     return layout
 
 
-@register
 class CaseBasedReasoning(Planner):
     name = "cbr"
     family = "case-based"

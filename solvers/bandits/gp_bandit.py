@@ -2,7 +2,7 @@
 
 Read top to bottom (cleanrl style): hyper-parameters, the local GP, its best response, the run (fit,
 propose, act on held-out tasks). The rounds loop itself (data, round 0, batch size, warm starts,
-repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandit`'s, shared with ``surrogate-ts``.
+repeats, budget, held-out tasks) is :mod:`fixbench.solvers.bandits.bandit`'s, shared with ``surrogate-ts``.
 
 References: Srinivas, Krause, Kakade and Seeger, ICML 2010, "Gaussian Process Optimization in the
 Bandit Setting" (GP-UCB); Krause and Ong, NeurIPS 2011, "Contextual Gaussian Process Bandit
@@ -60,7 +60,7 @@ alternatives); only when the pool is used up are the rest random neighbours of t
 agent's action changed at random, repeatedly, until new; after ``tries`` changes a repeat is
 accepted: a tiny joint space can be used up).
 
-Rounds, as in ``surrogate-ts`` (:mod:`fixbench.solvers.bandit`), the tasks of a round proposed and
+Rounds, as in ``surrogate-ts`` (:mod:`fixbench.solvers.bandits.bandit`), the tasks of a round proposed and
 evaluated task after task, each task's window including what the earlier tasks of the round just
 evaluated; the hyper-parameters are refitted every ``fit_every`` rounds. Many small rounds of one
 sweep each beat a few large rounds of more sweeps at the same cost (50 wing-panel positions, 100
@@ -104,10 +104,9 @@ from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers import descent
-from fixbench.solvers.bandit import BanditConfig, BanditRun, RoundsBandit
+from fixbench.solvers.bandits.bandit import BanditConfig, BanditRun, RoundsBandit
 from fixbench.solvers.base import TracedEvaluator, at_least, random_layouts, require
 from fixbench.solvers.encoding import pad_coordinates
-from fixbench.solvers.registry import register
 from fixbench.solvers.transfer import nearest_tasks
 
 F64 = torch.float64
@@ -371,7 +370,7 @@ class LocalGP:
 # the run: windows, fits, descents of the bound, GP-BUCB batches, the mean on held-out tasks
 # ---------------------------------------------------------------------------------------------
 class UCBRun(BanditRun):
-    """One run of ``gp-ucb`` on the rounds loop (:class:`fixbench.solvers.bandit.BanditRun`)."""
+    """One run of ``gp-ucb`` on the rounds loop (:class:`fixbench.solvers.bandits.bandit.BanditRun`)."""
 
     clocks = ("fit", "gp", "act", "oracle")  # gp: building the local GPs of the windows
 
@@ -495,7 +494,6 @@ class UCBRun(BanditRun):
 # ---------------------------------------------------------------------------------------------
 # the planner
 # ---------------------------------------------------------------------------------------------
-@register
 class GPUCB(RoundsBandit):
     name = "gp-ucb"
     family = "bandit"

@@ -8,7 +8,6 @@ import numpy as np
 
 from fixbench.cases.problem import Problem
 from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, random_layouts
-from fixbench.solvers.registry import register
 
 
 @dataclass(frozen=True)
@@ -24,7 +23,6 @@ class RandomConfig(PlannerConfig):
         at_least(self, 1, "batch", "samples_per_task")
 
 
-@register
 class RandomSearch(Planner):
     name = "random"
     family = "random"

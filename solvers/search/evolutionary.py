@@ -1,31 +1,18 @@
-"""Evolutionary planners on pymoo: a genetic algorithm (``ga``) and particle swarm (``pso``).
+"""What the evolutionary planners on pymoo share: a genetic algorithm (``ga``,
+:mod:`fixbench.solvers.search.ga`) and particle swarm (``pso``, :mod:`fixbench.solvers.search.pso`).
 
 Both wrap a vectorised pymoo :class:`~pymoo.core.problem.Problem`
-(:class:`~fixbench.solvers.pymoo_problem.PopulationProblem`) whose ``_evaluate`` decodes a whole
+(:class:`~fixbench.solvers.search.pymoo_problem.PopulationProblem`) whose ``_evaluate`` decodes a whole
 population into layouts and makes one counted oracle call for it, so every generation is one
 batched call: ``ev.evaluate(task, layouts)`` in per-task mode (one sample a
 layout), ``ev.evaluate_shared(layouts)`` in shared mode (objective: the worst task; ``n_tasks``
 samples a layout).
 
-Encodings (:mod:`fixbench.solvers.pymoo_problem` owns them):
-
-- ``ga`` (:func:`~fixbench.solvers.pymoo_problem.integer_encoding`): one integer gene per agent, the
-  position in that agent's own action set (``0..len(set)-1``); integer random sampling, SBX
-  crossover and polynomial mutation with rounding repair (pymoo's recipe for integer variables),
-  duplicates eliminated.
-- ``pso`` (:func:`~fixbench.solvers.pymoo_problem.plane_encoding`): mapping (a), continuous
-  positions in the plane. Each agent has a point ``(x, y)`` (2 variables an agent) bounded by its
-  set's bounding box, padded by half the median nearest-neighbour spacing of all candidates (so
-  border candidates get cells of the usual size and a set on a line still has a box of positive
-  width). A point is snapped to the agent's nearest candidate with a KD-tree per agent. Why not (b),
-  a continuous index rounded: the candidate order is not spatially meaningful (a grid is numbered
-  row by row, so index i+1 can be across the part), and a velocity in index space would jump between
-  rows; in the plane, neighbours in space are neighbours in the search, which is what the
-  deformation field is smooth in. A robot that places m pads has 2 m variables (its pads' centre
-  and offsets, from ``Problem.points``), snapped to its nearest action.
+Encodings (:mod:`fixbench.solvers.search.pymoo_problem` owns them; each planner's module says why its
+own): ``ga``, one integer gene per agent; ``pso``, a point in the plane per agent.
 
 Fitness: by default the *soft max* of |u|, the power mean over the measurement points with
-``soft_power`` (same solve, no extra sample; why: see :mod:`fixbench.solvers.greedy`), the max itself with
+``soft_power`` (same solve, no extra sample; why: see :mod:`fixbench.solvers.search.greedy`), the max itself with
 ``soft_power = 0``. What is returned and scored is still the layout with the lowest true max.
 Measured at 2 % of the joint space (3 seeds): on fan_small the max as fitness left GA +6.7 % and
 PSO +35 % above the optimum, the soft max (p = 4) +0.4 % and +0.1 %.
@@ -66,33 +53,25 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from pymoo.algorithms.soo.nonconvex.ga import GA
-from pymoo.algorithms.soo.nonconvex.pso import PSO
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.sampling import Sampling
 from pymoo.core.termination import TerminateIfAny
-from pymoo.operators.crossover.sbx import SBX
-from pymoo.operators.mutation.pm import PM
-from pymoo.operators.repair.rounding import RoundingRepair
-from pymoo.operators.sampling.lhs import LHS
-from pymoo.operators.sampling.rnd import IntegerRandomSampling
 from pymoo.optimize import minimize
 from pymoo.termination.ftol import SingleObjectiveSpaceTermination
 from pymoo.termination.max_eval import MaximumFunctionCallTermination
 from pymoo.termination.robust import RobustTermination
 
 from fixbench.cases.problem import Problem
-from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least, require
-from fixbench.solvers.pymoo_problem import Encoding, PopulationProblem, integer_encoding, plane_encoding
-from fixbench.solvers.registry import register
+from fixbench.solvers.base import Planner, PlannerConfig, Share, TracedEvaluator, at_least
+from fixbench.solvers.search.pymoo_problem import Encoding, PopulationProblem
 
 
-class _EvolutionaryPlanner(Planner):
+class EvolutionaryPlanner(Planner):
     """One pymoo run on each share of the budget (:meth:`~fixbench.solvers.base.Planner.drive`): per
     task, or one on the worst task (shared)."""
 
     family = "evolutionary"
-    #: the layouts as this algorithm's variables (:mod:`fixbench.solvers.pymoo_problem`)
+    #: the layouts as this algorithm's variables (:mod:`fixbench.solvers.search.pymoo_problem`)
     encoding: ClassVar[Callable[[Problem], Encoding]]
 
     @abstractmethod
@@ -154,7 +133,7 @@ class EvolutionConfig(PlannerConfig):
         at_least(self, 0, "soft_power", "stall_generations", "transfer")
 
 
-class _Seeded(Sampling):
+class Seeded(Sampling):
     """A sampling whose first individuals are given (warm starts) and the rest drawn by ``base``."""
 
     def __init__(self, base: Sampling, seeds: np.ndarray | None):
@@ -167,100 +146,3 @@ class _Seeded(Sampling):
             k = min(len(self.seeds), n_samples)
             X[:k] = self.seeds[:k]
         return X
-
-
-@dataclass(frozen=True)
-class GAConfig(EvolutionConfig):
-    tunable: ClassVar[dict[str, tuple]] = {
-        "pop_size": ("int", 20, 400),
-        "crossover_eta": ("log", 1.0, 20.0),
-        "mutation_eta": ("log", 1.0, 20.0),
-        "soft_power": ("float", 1.0, 8.0),
-        "transfer": ("int", 0, 5),
-    }
-    """What ``fixbench tune`` searches (bench/tune.py)."""
-
-    pop_size: int = 200
-    """Population size; also the offspring per generation (layouts per counted call)."""
-
-    crossover_prob: float = 0.9
-    """Probability that a mating pair is recombined by SBX (else the parents are copied)."""
-
-    crossover_eta: float = 3.0
-    """SBX distribution index: small spreads children far from their parents."""
-
-    mutation_eta: float = 3.0
-    """Polynomial-mutation distribution index: small makes large jumps in a gene."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        at_least(self, 2, "pop_size")
-        require(self, "crossover_prob", 0 <= self.crossover_prob <= 1, "in [0, 1]")
-        require(self, "crossover_eta", self.crossover_eta > 0, "positive")
-        require(self, "mutation_eta", self.mutation_eta > 0, "positive")
-
-
-@register
-class GeneticPlanner(_EvolutionaryPlanner):
-    name = "ga"
-    description = "pymoo genetic algorithm, one integer gene per agent (index into its set)"
-    Config = GAConfig
-    encoding = staticmethod(integer_encoding)
-
-    def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
-        cfg = self.config
-        return GA(pop_size=size, sampling=_Seeded(IntegerRandomSampling(), seeds),
-                  crossover=SBX(prob=cfg.crossover_prob, eta=cfg.crossover_eta, vtype=float,
-                                repair=RoundingRepair()),
-                  mutation=PM(eta=cfg.mutation_eta, vtype=float, repair=RoundingRepair()),
-                  eliminate_duplicates=True)
-
-
-@dataclass(frozen=True)
-class PSOConfig(EvolutionConfig):
-    tunable: ClassVar[dict[str, tuple]] = {
-        "pop_size": ("int", 20, 400),
-        "w": ("float", 0.3, 1.0),
-        "c1": ("float", 0.5, 3.0),
-        "c2": ("float", 0.5, 3.0),
-        "soft_power": ("float", 1.0, 8.0),
-        "transfer": ("int", 0, 5),
-    }
-    """What ``fixbench tune`` searches (bench/tune.py)."""
-
-    pop_size: int = 200
-    """Swarm size (particles); also the layouts per counted call."""
-
-    w: float = 0.9
-    """Inertia weight (the start value when ``adaptive``)."""
-
-    c1: float = 2.0
-    """Cognitive weight: pull towards the particle's own best."""
-
-    c2: float = 2.0
-    """Social weight: pull towards the swarm's best."""
-
-    adaptive: bool = True
-    """Adapt w, c1, c2 from the swarm's spread each generation (pymoo's fuzzy rules)."""
-
-    max_velocity_rate: float = 0.2
-    """Largest step per generation as a fraction of the agent's box side."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        at_least(self, 2, "pop_size")
-        at_least(self, 0, "w", "c1", "c2")
-        require(self, "max_velocity_rate", self.max_velocity_rate > 0, "positive")
-
-
-@register
-class SwarmPlanner(_EvolutionaryPlanner):
-    name = "pso"
-    description = "pymoo particle swarm, a point in the plane per agent snapped to its nearest candidate"
-    Config = PSOConfig
-    encoding = staticmethod(plane_encoding)
-
-    def _algorithm(self, size: int, seeds: np.ndarray | None) -> Algorithm:
-        cfg = self.config
-        return PSO(pop_size=size, sampling=_Seeded(LHS(), seeds), w=cfg.w, c1=cfg.c1, c2=cfg.c2,
-                   adaptive=cfg.adaptive, max_velocity_rate=cfg.max_velocity_rate)

@@ -59,7 +59,6 @@ from fixbench.solvers.base import (
     require,
     require_budget,
 )
-from fixbench.solvers.registry import register
 
 #: measured components of each field, in the order of the field's measurement rows
 _COMPONENTS = {"bending": ("w",), "membrane": ("ux", "uy")}
@@ -96,7 +95,6 @@ class ExactConfig(PlannerConfig):
         require(self, "big_m_factor", self.big_m_factor > 0, "positive")
 
 
-@register
 class Exact(Planner):
     name = "exact"
     family = "exact"
