@@ -91,8 +91,8 @@ def plate_toml(tmp_path):
 @pytest.fixture(autouse=True)
 def _registry_left_as_found():
     """Planners a test registers (plugins written to tmp_path, ``module:Class`` specs) leave the
-    registry when the test ends, so no later test in the same worker sees them. Built-ins stay: their
-    modules register them once, when first imported."""
+    registry when the test ends, so no later test in the same worker sees them. Built-ins stay: the
+    registry registers each once, when it is first asked for by name (its BUILTIN line)."""
     from fixbench.solvers import registry
 
     before = set(registry._REGISTRY)
