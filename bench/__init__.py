@@ -1,16 +1,18 @@
 """fixbench's harness: benchmark matrices, executors, the results store, reports and the CLI.
 
-``load_results`` is imported on first use (PEP 562): the CLI starts without pandas.
+``load_results`` (a run's rows as stored) and ``load_rows`` (the table the reports read: labels, ``ok``,
+defaults; :mod:`fixbench.bench.running.rows`) are imported on first use (PEP 562): the CLI starts
+without pandas.
 """
 
 from __future__ import annotations
 
-__all__ = ["load_results"]
+__all__ = ["load_results", "load_rows"]
 
 
 def __getattr__(name: str):
-    if name == "load_results":
-        from fixbench.bench.running.store import load_results
+    if name in __all__:
+        from fixbench.bench.running import rows
 
-        return load_results
+        return getattr(rows, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -11,8 +11,8 @@ and prints, per cell, the committed and the new scored value (``objective_m``):
 - a learner whose results follow the host's floating-point code paths (PyTorch training:
   ``same_on_every_host = False``) agrees when it does so to 1e-9 (the same code path), else when the
   new value falls within its group's 95 % prediction interval over seeds
-  (:func:`fixbench.bench.reporting.stats.prediction_interval`; the group: the row's planner entry and problem,
-  every seed);
+  (:func:`fixbench.bench.reporting.stats.prediction_interval`; the group: the row's replicates, its planner
+  entry on the same settings with every seed, :data:`fixbench.bench.running.rows.REPLICATES`);
 
 and, for every cell, where this host's code path (CPU, BLAS, threads, switches, library versions;
 :mod:`fixbench.bench.running.provenance`) differs from the one the row records. The command exits 1 when a
@@ -33,20 +33,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.reporting.merge import load_references, load_rows
+from fixbench.bench.reporting.merge import load_references
 from fixbench.bench.reporting.report import check_scored_references
 from fixbench.bench.reporting.stats import LEVEL, prediction_interval
-from fixbench.bench.running.keys import reference_key
 from fixbench.bench.running.matrix import load_matrix
 from fixbench.bench.running.provenance import provenance
+from fixbench.bench.running.rows import REPLICATES, load_rows, reference_key
 from fixbench.bench.running.runner import make_executor, selection, worker_env
 from fixbench.bench.running.store import Store
 from fixbench.cases.errors import CaseError
 
 #: relative tolerance of an agreement to the bit (references count a layout better by this margin)
 TOLERANCE = 1e-9
-#: the settings of a row's group: every one but the seed (its interval is over seeds)
-GROUP = ("label", "case", "material", "agents", "n_tasks", "mode", "budget", "samples_per_task", "heldout_every")
 #: provenance entries that choose the floating-point code path (the host name does not)
 CODE_PATH = ("machine", "cpu", "numpy_blas", "torch_blas", "torch_cpu_capability", "torch_threads",
              "numba_threads", "env", "libraries", "python")
@@ -142,7 +140,7 @@ def judge(old: pd.Series, new: dict, done: pd.DataFrame) -> dict:
     rec["relative_difference"] = diff = value / rec["committed_m"] - 1
     rec["agrees"] = abs(diff) <= TOLERANCE
     if not old["same"] and not rec["agrees"]:
-        group = done[np.logical_and.reduce([_same(done[c], old[c]) for c in GROUP])]
+        group = done[np.logical_and.reduce([_same(done[c], old[c]) for c in REPLICATES])]
         lo, hi = prediction_interval(group["objective_m"])
         if math.isnan(lo):
             rec["check"] = f"{TOLERANCE:g} (one seed: no interval)"

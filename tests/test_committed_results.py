@@ -15,7 +15,7 @@ import pytest
 
 from fixbench.bench.reporting.merge import load_references
 from fixbench.bench.running.matrix import task_subset
-from fixbench.bench.running.store import load_results
+from fixbench.bench.running.rows import load_results
 from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"

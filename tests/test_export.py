@@ -24,8 +24,9 @@ from fixbench.bench.reporting.export import (
     read_iohprofiler,
     strict_json,
 )
+from fixbench.bench.running.rows import ROW_SCHEMA, load_results
 from fixbench.bench.running.runner import run_matrix
-from fixbench.bench.running.store import ROW_SCHEMA, load_curves, load_results, load_traces
+from fixbench.bench.running.store import load_curves, load_traces
 
 # every mode, a classical planner (small batches: several trace rows a task) and a learner with a
 # few episodes; iql has no shared mode, so two of its cells fail (rows with an error)

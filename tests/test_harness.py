@@ -13,8 +13,8 @@ import pytest
 
 from fixbench.bench.cli import main
 from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.rows import ROW_SCHEMA, load_results
 from fixbench.bench.running.runner import run_matrix
-from fixbench.bench.running.store import ROW_SCHEMA, load_results
 
 TINY = """
 name = "tiny"

@@ -15,8 +15,9 @@ from fixbench.bench.reporting.comparison import (
     main_table,
     show_headline,
 )
-from fixbench.bench.reporting.merge import in_matrix_order, load_runs
+from fixbench.bench.reporting.merge import load_runs
 from fixbench.bench.reporting.stats import probability_of_improvement
+from fixbench.bench.running.rows import in_matrix_order
 
 #: greedy stands in for a learner, so that the last line has two sides
 FAMILY = {"random": "random", "greedy": "marl", "local": "local-search"}

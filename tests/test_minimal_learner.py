@@ -15,7 +15,8 @@ import pytest
 from fixbench.bench.cli import main
 from fixbench.bench.reporting.figures import FIGURE4_CURVES, draw_figure4, learner_runs, plt
 from fixbench.bench.reporting.report import learner_cells
-from fixbench.bench.running.store import load_curves, load_results
+from fixbench.bench.running.rows import load_results
+from fixbench.bench.running.store import load_curves
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = "my_learner:EpsGreedy"

@@ -17,7 +17,7 @@ import pytest
 
 from fixbench.bench.cli import main
 from fixbench.bench.running.executors import RayExecutor
-from fixbench.bench.running.store import load_results
+from fixbench.bench.running.rows import load_results
 
 ray = pytest.importorskip("ray")
 

@@ -13,7 +13,8 @@ import pytest
 
 import fixbench.cases.references as refs
 from fixbench.bench.running.references import Portfolio, bound, build, compute_reference, rescore, update
-from fixbench.bench.running.store import CHECKSUM, Store, row_checksum, write_json_atomic
+from fixbench.bench.running.rows import CHECKSUM, row_checksum
+from fixbench.bench.running.store import Store, write_json_atomic
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import load_case_spec

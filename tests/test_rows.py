@@ -1,29 +1,36 @@
 """Row files (docs/rows.md): schema 3 writes strict JSON, the JSON columns as plain JSON values and a
 missing number as null; schema-1 files (those columns as JSON text) and schema-2 files (a missing
 number as NaN) still read, to the same in-memory row; a damaged row of any schema is refused; a
-rewrite upgrades an older row to schema 3."""
+rewrite upgrades an older row to schema 3. The one loader (``load_rows``) gives an early row's defaults,
+and no module of the harness but bench/running/rows.py spells out a key that groups rows."""
 
 from __future__ import annotations
 
+import ast
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 from conftest import strict_json_loads
 
+import fixbench.bench
 from fixbench.bench.reporting.html_report import provenance_html
-from fixbench.bench.running.store import (
+from fixbench.bench.running.rows import (
     CHECKSUM,
     JSON_COLUMNS,
+    NUMBERS,
+    REFERENCE,
     ROW_SCHEMA,
     SCHEMA_VERSION,
-    Store,
+    TEXT_COLUMNS,
     load_results,
+    load_rows,
     row_checksum,
-    write_json_atomic,
 )
+from fixbench.bench.running.store import Store, write_json_atomic
 
 #: the JSON columns of one cell, as values
 VALUES = {"config": {"batch": 5, "shape": [2, 3]}, "per_task_m": [1.25e-5, 2.5e-5, 3.0e-5],
@@ -135,3 +142,87 @@ def test_provenance_records_are_grouped_by_value():
     page = provenance_html(rows)
     assert "record 1 (2 cells)" in page and "record 2 (1 cells)" in page and "record 3" not in page
     assert "Not recorded for 1 cells" in page
+
+
+def test_the_loader_gives_an_early_row_its_defaults(tmp_path):
+    """A schema-1 row of an early run (no mode, no error, numbers as text) reads through ``load_rows`` as a
+    per-task row without error, its numbers as numbers and its label the planner's."""
+    store = Store(tmp_path / "run")
+    early = {k: v for k, v in _row().items() if k not in ("mode", "error", "label")}
+    _write_schema_1(store, dict(early, wall_s="1.5"))
+    _write_schema_1(store, dict(_row("c1"), mode="shared", error="Boom: no", label="mine"))
+    rows = load_rows(store.root).set_index("cell")
+    assert rows.loc["c0", ["mode", "error", "ok", "label"]].tolist() == ["per-task", "", True, "random"]
+    assert rows.loc["c1", ["mode", "ok", "label"]].tolist() == ["shared", False, "mine"]
+    assert rows["wall_s"].dtype == float and rows.loc["c0", "wall_s"] == 1.5
+    assert set(NUMBERS) | set(TEXT_COLUMNS) | set(JSON_COLUMNS) | {"reference_proven"} == set(ROW_SCHEMA)
+
+
+# one definition of the keys that group rows ---------------------------------------------------------
+
+BENCH = Path(fixbench.bench.__path__[0])
+#: the one module that spells out the columns rows group by
+ROWS_MODULE = BENCH / "running" / "rows.py"
+#: frame methods whose column arguments group, order or pick rows
+FRAME_CALLS = {"groupby", "sort_values", "pivot_table", "pivot", "drop_duplicates", "duplicated", "dropna",
+               "set_index", "merge", "value_counts"}
+
+
+def _strings(node) -> list[str] | None:
+    """The strings of a literal tuple, list or set of strings (nested ones too), else None."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return [node.value]
+    if not isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+        return None
+    parts = [_strings(e) for e in node.elts]
+    return None if any(p is None for p in parts) else [s for p in parts for s in p]
+
+
+def _literals(node) -> list[list[str]]:
+    """The string literals ``node`` is made of: itself, or each term of a sum (``["case", ...] + more``)."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
+        return _literals(node.left) + _literals(node.right)
+    names = _strings(node)
+    return [] if names is None else [names]
+
+
+def keys_of_its_own(source: str) -> list[int]:
+    """The lines where ``source`` spells out a key of rows itself: a literal of column names with two or
+    more of the problem's (case, material, agents, n_tasks) given a name (a constant, a local), or a
+    literal with any of them but the case handed to a frame's grouping, sorting or picking call."""
+    problem = set(REFERENCE)
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Assign, ast.AnnAssign)) and node.value is not None:
+            if any(len(set(names) & problem) >= 2 for names in _literals(node.value)):
+                found.append(node.lineno)
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in FRAME_CALLS:
+            for arg in [*node.args, *(k.value for k in node.keywords)]:
+                if any(len(set(names) & problem) >= 2 or set(names) & problem - {"case"}
+                       for names in _literals(arg)):
+                    found.append(node.lineno)
+    return sorted(set(found))
+
+
+def test_no_module_of_the_harness_defines_a_row_key_of_its_own():
+    """Every grouping of rows by their problem comes from bench/running/rows.py (REFERENCE, PROBLEM,
+    RANKED, SETTINGS, ...): a module of bench/ that writes its own tuple of those columns, or groups by a
+    literal list of them, defines a second key that can drift from the first."""
+    wrong = [f"{p.relative_to(BENCH)}:{line}" for p in sorted(BENCH.rglob("*.py")) if p != ROWS_MODULE
+             for line in keys_of_its_own(p.read_text(encoding="utf-8"))]
+    assert not wrong, "keys of their own (use those of bench/running/rows.py): " + ", ".join(wrong)
+
+
+def test_the_check_finds_a_key_of_its_own():
+    """The check fails on what it is meant to catch: a module constant, a nested (column, name) table, a
+    local key and a grouping by a literal list of problem columns; a per-case table is no key."""
+    source = """
+KEY = ("case", "material", "agents")
+NAMED = (("case", "case"), ("n_tasks", "tasks"))
+def f(df):
+    keys = ["case", "material", "seed"] + [k for k in ("mode",) if df[k].nunique() > 1]
+    a = df.groupby(["case", "label"]).size()
+    b = df.sort_values(by=["agents", "label"])
+    return df.groupby(["case", "n_tasks", "label"], sort=True).size(), a, b, keys
+"""
+    assert keys_of_its_own(source) == [2, 3, 5, 7, 8]

@@ -15,8 +15,8 @@ import pytest
 
 from fixbench.bench.cli import main
 from fixbench.bench.running.matrix import load_matrix
+from fixbench.bench.running.rows import load_results
 from fixbench.bench.running.runner import run_matrix
-from fixbench.bench.running.store import load_results
 
 TRACKS = """
 name = "tracks"

@@ -20,6 +20,8 @@ Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each
 (the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
 a learner's policy is never in the ranking, only in ``policy_table``.
 
+Every table takes a run's rows as :func:`fixbench.bench.running.rows.load_rows` gives them (``label``, ``ok``,
+``mode`` filled in) and groups them by the keys of :mod:`fixbench.bench.running.rows`.
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.running.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
 bootstraps (:func:`fixbench.bench.reporting.stats.mean_ci`,
@@ -36,9 +38,8 @@ import pandas as pd
 
 from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement
 from fixbench.bench.reporting.tables import ci_column, fmt, setting_text
-from fixbench.bench.running.keys import RANKED, reference_of, split
-
-#: columns that, with the budget level, make a problem for ranking (cells of one problem compete)
+from fixbench.bench.running.keys import split
+from fixbench.bench.running.rows import RANKED, budget_level, reference_of, with_case_defaults
 
 #: the headline's families of planners (``Planner.family``), in its order, with their headings; a family
 #: not listed (a plugin's own) follows under its own name
@@ -184,31 +185,15 @@ def show_improvement(table: pd.DataFrame, group: Sequence[str] = ()) -> pd.DataF
 
 # the main table -------------------------------------------------------------------------------------
 
-def _budget_level(rows: pd.DataFrame) -> pd.Series:
-    """The budget part of a problem: samples a task in a sweep run, else the cell's budget."""
-    return rows["samples_per_task"] if rows["samples_per_task"].notna().any() else rows["budget"]
-
-
-def _with_case_defaults(rows: pd.DataFrame) -> pd.DataFrame:
-    """Rows whose problem columns are missing get their case's value where the case has one: a failed
-    cell's row keeps the matrix's raw settings (no tasks count; no agents or material where the case's
-    default was meant), so without this it would sit alone on a problem of its own."""
-    out = rows.copy()
-    for col in ("material", "agents", "n_tasks"):
-        values = out.dropna(subset=[col]).groupby("case")[col].unique()
-        single = {case: v[0] for case, v in values.items() if len(v) == 1}
-        out[col] = out[col].fillna(out["case"].map(single))
-    return out
-
-
 def problem_ranks(rows: pd.DataFrame) -> pd.DataFrame:
     """Rank of each planner label on each problem (case x material x seed x agents x tasks x mode x
     budget level): 1 = lowest objective, failed cells last (ties share the mean rank). A cell without a
     budget level (a planner with its own budget, e.g. ``exact`` unlimited) competes at every level of its
-    other keys; planners without a cell on a problem take no part in it."""
+    other keys; planners without a cell on a problem take no part in it (:data:`~fixbench.bench.running.rows.RANKED`,
+    :func:`~fixbench.bench.running.rows.budget_level`)."""
     keys = list(RANKED)
-    rows = _with_case_defaults(rows)
-    d = rows.assign(level=_budget_level(rows),
+    rows = with_case_defaults(rows)
+    d = rows.assign(level=budget_level(rows),
                     obj=np.where(rows["ok"] & np.isfinite(rows["objective_m"]), rows["objective_m"], np.inf))
     d = d[keys + ["level", "label", "obj"]]
     levelled = d[d["level"].notna()]
@@ -225,7 +210,7 @@ def problem_ranks(rows: pd.DataFrame) -> pd.DataFrame:
 def main_columns(rows: pd.DataFrame) -> list[tuple[str, str, str | None]]:
     """The main table's regret columns: (name, case, mode); one per case, or per case and mode when
     the run has several modes (per-task and held-out regrets are not the same measurement)."""
-    modes = list(dict.fromkeys(rows["mode"].fillna("per-task")))
+    modes = list(dict.fromkeys(rows["mode"]))
     cases = list(dict.fromkeys(rows["case"]))
     if len(modes) == 1:
         return [(case, case, None) for case in cases]
@@ -234,10 +219,10 @@ def main_columns(rows: pd.DataFrame) -> list[tuple[str, str, str | None]]:
 
 def _in_column(scored: pd.DataFrame, case: str, mode: str | None) -> pd.Series:
     """The rows of one main-table column (:func:`main_columns`): its case, and its mode when the run
-    has several (a row without a mode is per-task)."""
+    has several."""
     pick = scored["case"] == case
     if mode is not None:
-        pick &= scored["mode"].fillna("per-task") == mode
+        pick &= scored["mode"] == mode
     return pick
 
 
@@ -320,7 +305,7 @@ def policy_table(rows: pd.DataFrame) -> pd.DataFrame:
     scored = _scored(rows)
     if "policy_relative_regret" not in scored:
         return pd.DataFrame()
-    scored = scored.assign(policy_pct=pd.to_numeric(scored["policy_relative_regret"], errors="coerce") * 100)
+    scored = scored.assign(policy_pct=scored["policy_relative_regret"] * 100)
     scored = scored[np.isfinite(scored["policy_pct"]) & (scored["mode"] != "held-out")]
     columns = [(n, c, m) for n, c, m in main_columns(rows) if m != "held-out"]
     recs = []
@@ -369,7 +354,7 @@ def iqm_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
     best and worst quarter of (run, position) pairs. Shared-mode cells (scored by their worst task) are
     left out."""
     scored = _scored(rows)
-    scored = scored[scored["mode"].fillna("per-task").isin(["per-task", "held-out"])]
+    scored = scored[scored["mode"].isin(["per-task", "held-out"])]
     columns = [(n, c, m) for n, c, m in main_columns(rows) if m != "shared"]
     recs = []
     for label in sorted(scored["label"].unique()):

@@ -3,7 +3,8 @@
 Why: fixbench's own report (:mod:`fixbench.bench.reporting.report`) is one view of a run; IOHanalyzer (fixed-target
 and fixed-budget runtime statistics, ERT, ECDFs), marl-eval (BenchMARL's rliable-based aggregation)
 and any spreadsheet or R session are others. Everything is read back through the results store
-(:mod:`fixbench.bench.running.store`: rows, anytime traces, learners' curves); nothing is recomputed.
+(rows: :func:`fixbench.bench.running.rows.load_rows`; anytime traces, learners' curves:
+:mod:`fixbench.bench.running.store`); nothing is recomputed.
 
 Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" below):
 
@@ -16,7 +17,8 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
         OUT/<algorithm>/data_f<id>_<name>/IOHprofiler_f<id>_DIM<agents>.dat
 
     A *problem* (function) is what a cell ran on: case x material x agents x mode x task set
-    (``n_tasks``; held-out cells also ``heldout_every``); its name reads
+    (``n_tasks``; held-out cells also ``heldout_every``: :func:`fixbench.bench.running.rows.track_of`);
+    its name reads
     ``<case>-<material>-a<agents>-t<n_tasks>-<mode>`` and its id is a number made from the name
     (:func:`function_id`), so that one problem keeps its id in every export, whichever other
     problems a run holds. DIM is the number of agents,
@@ -72,8 +74,10 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
     that is not there is ``null``.
 
 ``csv``
-    ``OUT/rows.csv`` (one row per finished cell, the columns of ``ROW_SCHEMA``, NaN as an empty
-    field, the JSON columns (config, per-task values, layouts, info, provenance) as JSON text),
+    ``OUT/rows.csv`` (one row per finished cell as the run stores it,
+    :func:`fixbench.bench.running.rows.load_results`: the columns of ``ROW_SCHEMA``, NaN as an empty
+    field, a label only where the matrix entry gives one, the JSON columns (config, per-task values,
+    layouts, info, provenance) as JSON text),
     ``OUT/traces.csv`` (``cell, task, task_samples, samples, best``) and, when the run has learners,
     ``OUT/curves.csv`` (``cell, curve, index, value``).
 
@@ -102,17 +106,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.reporting.tables import config_text
-from fixbench.bench.running.keys import problem_of
-from fixbench.bench.running.store import (
-    JSON_COLUMNS,
-    ROW_SCHEMA,
-    TRACE_COLUMNS,
-    json_text,
-    load_curves,
-    load_results,
-    load_traces,
-)
+from fixbench.bench.running.rows import JSON_COLUMNS, ROW_SCHEMA, load_results, load_rows, track_of
+from fixbench.bench.running.store import TRACE_COLUMNS, json_text, load_curves, load_traces
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
@@ -128,30 +123,35 @@ EPISODE_CURVE = re.compile(r"^episode_")
 
 # reading the run ------------------------------------------------------------------------------------
 
-def load_run(run_dir: str | Path) -> pd.DataFrame:
-    """The finished rows of ``run_dir`` with ``algorithm`` (how formats name a planner entry) and
-    ``problem`` (the key of what the cell ran on); one-line error if it is not a run directory."""
+def _run_dir(run_dir: str | Path) -> Path:
+    """``run_dir``, or a one-line error if it is not a run directory."""
     run_dir = Path(run_dir)
     if not (run_dir / "rows").is_dir():
         raise CaseError(str(run_dir), "", "not a run directory (no rows/ folder; `fixbench run` writes one)")
-    rows = load_results(run_dir)
+    return run_dir
+
+
+def _some(rows: pd.DataFrame, run_dir: Path) -> pd.DataFrame:
     if rows.empty:
         raise CaseError(str(run_dir), "rows", "no finished cell to export")
-    rows["error"] = rows["error"].fillna("").astype(str)
-    rows["mode"] = rows["mode"].fillna("per-task")
-    for c in ("agents", "n_tasks", "seed", "samples", "heldout_every", "budget", "samples_per_task",
-              "objective_m", "reference_objective_m", "relative_regret", "mean_max_deformation_m"):
-        rows[c] = pd.to_numeric(rows[c], errors="coerce")
+    return rows
+
+
+def load_run(run_dir: str | Path) -> pd.DataFrame:
+    """The finished rows of ``run_dir`` (:func:`fixbench.bench.running.rows.load_rows`) with ``algorithm``
+    (how formats name a planner entry) and ``problem`` (the key of what the cell ran on); one-line error if
+    it is not a run directory."""
+    run_dir = _run_dir(run_dir)
+    rows = _some(load_rows(run_dir), run_dir)
     rows["problem"] = [_problem_key(r) for r in rows.itertuples(index=False)]
     rows["algorithm"] = _algorithm_names(rows)
     return rows
 
 
 def _problem_key(r) -> tuple:
-    """One exported problem: the row's :data:`~fixbench.bench.running.keys.PROBLEM` and its held-out
-    level (0: none), since other tools cannot tell the tracks apart by mode alone."""
-    case, material, agents, n_tasks, mode = problem_of(r._asdict())
-    k = int(r.heldout_every) if mode == "held-out" and not _nan(r.heldout_every) else 0
+    """One exported problem: the row's :func:`~fixbench.bench.running.rows.track_of` (its problem and
+    held-out level, 0: none), since other tools cannot tell the tracks apart by mode alone."""
+    case, material, agents, n_tasks, mode, k = track_of(r._asdict())
     return (str(case), str(material), _int(agents), _int(n_tasks), str(mode), k)
 
 
@@ -162,14 +162,10 @@ def _problem_name(key: tuple, with_case: bool = True) -> str:
 
 
 def _algorithm_names(rows: pd.DataFrame) -> list[str]:
-    """The report's label (the matrix entry's label, else the planner, with its config when one
-    planner ran unlabelled under several configs); where one label ran on a problem under several
-    budgets (a sweep), the budget is added: ``random @10/task``, ``random @600``."""
-    cfg = rows["config"].map(config_text)
-    given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
-    several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
-    base = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
-            for g, p, c in zip(given, rows["planner"], cfg)]
+    """The report's label (``label``: :func:`fixbench.bench.running.rows.entry_labels`); where one label
+    ran on a problem under several budgets (a sweep), the budget is added: ``random @10/task``,
+    ``random @600``."""
+    base = list(rows["label"])
     effort = [f"@{_num(s)}/task" if not _nan(s) else (f"@{_num(b)}" if not _nan(b) else "@unlimited")
               for s, b in zip(rows["samples_per_task"], rows["budget"])]
     counts = pd.DataFrame({"p": rows["problem"], "b": base, "e": effort}).groupby(["p", "b"])["e"].nunique()
@@ -473,8 +469,8 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path) -> dict:
     returns a summary (counts, and cells skipped by reason)."""
     if fmt not in FORMATS:
         raise CaseError("--format", fmt, f"unknown format (known: {', '.join(FORMATS)})")
-    run_dir, out = Path(run_dir), Path(out)
-    rows = load_run(run_dir)
+    run_dir, out = _run_dir(run_dir), Path(out)
+    rows = _some(load_results(run_dir), run_dir) if fmt == "csv" else load_run(run_dir)
     _check_out(out)
     with _building(out) as tmp:
         if fmt == "iohprofiler":

@@ -23,7 +23,7 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator  # noqa: E
 
 from fixbench.bench.reporting.plots import outline  # noqa: E402
 from fixbench.bench.reporting.stats import BOOT_SEED, TARGETS, on_grid, runtime, sample_grid  # noqa: E402
-from fixbench.bench.running.keys import reference_of  # noqa: E402
+from fixbench.bench.running.rows import reference_of  # noqa: E402
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD  # noqa: E402
 from fixbench.solvers.base import Training  # noqa: E402
 

@@ -17,7 +17,8 @@ Runs merge when their cells are comparable; the first difference is refused in o
 - a cell held by two runs (an extended copy beside its original) has the same result in both, and is
   read once.
 
-Labels are made per run, as :func:`load_rows` makes them for one run.
+Each run is read by the one loader, :func:`fixbench.bench.running.rows.load_rows` (its labels made per
+run); the settings compared are :data:`fixbench.bench.running.rows.SETTINGS`.
 """
 
 from __future__ import annotations
@@ -30,21 +31,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.reporting.comparison import _with_case_defaults
-from fixbench.bench.reporting.tables import config_text
-from fixbench.bench.running.keys import reference_of
-from fixbench.bench.running.store import load_results
+from fixbench.bench.running.rows import (
+    ORDER,
+    REFERENCE,
+    SETTINGS,
+    config_text,
+    load_rows,
+    reference_of,
+    with_case_defaults,
+)
 from fixbench.cases.errors import CaseError
-
-NUMERIC = ("agents", "budget", "seed", "n_tasks", "objective_m", "relative_regret", "samples_to_1pct",
-           "samples_to_5pct", "success_1pct", "success_5pct", "wall_s", "cpu_s", "samples",
-           "reference_objective_m", "samples_per_task", "heldout_every", "n_scored_tasks")
 
 #: the committed runs ``--with NAME`` names (``results/NAME`` of the fixbench checkout)
 RESULTS = Path(__file__).resolve().parents[2] / "results"
-#: a cell's settings, in the order a difference is looked for (column, as a message names it)
-SETTINGS = (("case", "case"), ("material", "material"), ("agents", "agents"), ("n_tasks", "tasks"),
-            ("mode", "mode"), ("heldout_every", "held-out every"), ("level", "budget"), ("seed", "seed"))
+#: how a message names a setting (its column otherwise)
+NAMES = {"n_tasks": "tasks", "heldout_every": "held-out every"}
+#: a cell's settings (:data:`~fixbench.bench.running.rows.SETTINGS`; its budget and samples a task as one
+#: ``level``), in the order a difference is looked for: (column, as a message names it)
+COMPARED = tuple(("level", "budget") if c == "budget" else (c, NAMES.get(c, c))
+                 for c in SETTINGS if c != "samples_per_task")
 #: what makes two rows of one cell the same result
 RESULT = ("error", "objective_m", "per_task_m", "samples")
 #: relative tolerance of two references' optima (the one regret uses)
@@ -82,40 +87,6 @@ class Runs:
                  if not df.empty]
         parts = [p for p in parts if not p.empty]
         return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
-
-
-def in_matrix_order(rows: pd.DataFrame, run_dir: Path) -> pd.DataFrame:
-    """``rows`` with the cases in the order the run's matrix lists them (tables and figures show the parts
-    as the matrix does), a stable sort; cases the matrix does not name (or no readable matrix) after."""
-    import tomllib
-
-    try:
-        listed = tomllib.loads((Path(run_dir) / "matrix.toml").read_text()).get("cases", [])
-    except (OSError, ValueError):
-        listed = []
-    order = {c: i for i, c in enumerate(listed) if isinstance(c, str)}
-    if rows.empty or not order:
-        return rows
-    rank = rows["case"].map(lambda c: order.get(c, len(order)))
-    return rows.iloc[rank.argsort(kind="stable")].reset_index(drop=True)
-
-
-def load_rows(run_dir: Path) -> pd.DataFrame:
-    """Rows with numeric columns coerced, ``ok`` (no error) and ``label``: the matrix entry's label
-    where the row has one, else the planner (with its config when the run has one planner under several
-    configs among the unlabelled rows; rows of older runs have no label column)."""
-    rows = in_matrix_order(load_results(run_dir), run_dir)
-    for c in NUMERIC:
-        rows[c] = pd.to_numeric(rows[c], errors="coerce")
-    rows["error"] = rows["error"].fillna("").astype(str)
-    rows["ok"] = rows["error"] == ""
-    rows["mode"] = rows["mode"].fillna("per-task")
-    cfg = rows["config"].map(config_text)
-    given = rows["label"].map(lambda v: v if isinstance(v, str) else "")
-    several = rows[given == ""].assign(cfg=cfg).groupby("planner")["cfg"].nunique()
-    rows["label"] = [g or (f"{p} ({c or 'default'})" if several.get(p, 1) > 1 else p)
-                     for g, p, c in zip(given, rows["planner"], cfg)]
-    return rows
 
 
 def load_references(run_dir: Path) -> dict[tuple, dict]:
@@ -164,7 +135,7 @@ def load_runs(paths: list[Path]) -> Runs:
     merged = pd.concat(kept, ignore_index=True)
     first = {c: i for i, c in enumerate(dict.fromkeys(merged["case"]))}  # the first run's matrix order
     merged = merged.assign(_case=merged["case"].map(first)).sort_values(
-        ["_case", "material", "planner", "seed", "cell"], kind="stable").drop(columns="_case")
+        ["_case", *ORDER[1:], "cell"], kind="stable").drop(columns="_case")
     merged = merged.reset_index(drop=True)
     merged.attrs["damaged"] = sum(r.attrs.get("damaged", 0) for r in rows)
     union = {}
@@ -200,8 +171,8 @@ def _check_references(paths: list[Path], rows: list[pd.DataFrame], refs: list[di
     """Every problem two runs have cells on has the same regret reference (or none) in both."""
     seen: dict[tuple, tuple[Path, dict | None]] = {}
     for path, r, ref in zip(paths, rows, refs):
-        d = _with_case_defaults(r).dropna(subset=["material", "agents", "n_tasks"])
-        for key in dict.fromkeys(zip(d["case"], d["material"], d["agents"].astype(int), d["n_tasks"].astype(int))):
+        d = with_case_defaults(r).dropna(subset=list(REFERENCE))
+        for key in dict.fromkeys(map(reference_of, d[list(REFERENCE)].to_dict("records"))):
             mine = ref.get(key)
             if key not in seen:
                 seen[key] = (path, mine)
@@ -236,15 +207,15 @@ def _reference_difference(mine: dict | None, theirs: dict | None) -> str:
 
 
 def _settings(rows: pd.DataFrame) -> list[tuple]:
-    """The distinct settings of a run's cells (:data:`SETTINGS`), in row order; ``level`` is the
+    """The distinct settings of a run's cells (:data:`COMPARED`), in row order; ``level`` is the
     samples a task of a sweep cell, else its budget, None for a planner's own (unlimited) budget."""
-    d = _with_case_defaults(rows)
+    d = with_case_defaults(rows)
     spt, budget = d["samples_per_task"], d["budget"]
     level = [("samples a task", _plain(s)) if _plain(s) is not None else
              ("budget", _plain(b)) if _plain(b) is not None else None for s, b in zip(spt, budget)]
     d = d.assign(level=level)
-    out = [tuple(_plain(v) if k != "level" else v for k, v in zip([c for c, _ in SETTINGS], vals))
-           for vals in d[[c for c, _ in SETTINGS]].itertuples(index=False)]
+    out = [tuple(_plain(v) if k != "level" else v for k, v in zip([c for c, _ in COMPARED], vals))
+           for vals in d[[c for c, _ in COMPARED]].itertuples(index=False)]
     return list(dict.fromkeys(out))
 
 
@@ -264,12 +235,12 @@ def _check_settings(paths: list[Path], rows: list[pd.DataFrame]) -> None:
             continue
         for s in mine:
             pool = base
-            for j, (col, name) in enumerate(SETTINGS):
+            for j, (col, name) in enumerate(COMPARED):
                 if col == "level" and s[j] is None:  # its own budget: at every budget of the problem
                     continue
                 match = {p for p in pool if p[j] == s[j]}
                 if not match:
-                    where = ", ".join(f"{n} {_show(c, s[k])}" for k, (c, n) in enumerate(SETTINGS[:j])
+                    where = ", ".join(f"{n} {_show(c, s[k])}" for k, (c, n) in enumerate(COMPARED[:j])
                                       if s[k] is not None or c == "level")
                     have = ", ".join(sorted({_show(col, p[j]) for p in pool}, key=str))
                     raise CaseError(str(path), "", f"not comparable with {paths[b]}: cells at {name} "

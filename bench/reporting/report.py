@@ -1,7 +1,8 @@
 """``fixbench report``: tables and figures of a run directory (docs/reporting.md).
 
-Everything is read back from the results store (:mod:`fixbench.bench.running.store`): rows, anytime traces,
-learners' training curves and the regret references. The report folder gets
+Everything is read back from the run directory: rows (:func:`fixbench.bench.running.rows.load_rows`, through
+:mod:`fixbench.bench.reporting.merge`), anytime traces and learners' training curves
+(:mod:`fixbench.bench.running.store`) and the regret references. The report folder gets
 
     report.md                   the tables (Markdown) and the figures (relative links)
     index.html                  the same as one self-contained page, with the run's provenance
@@ -80,7 +81,9 @@ from fixbench.bench.reporting.tables import (  # noqa: E402
     show_summary,
     summary_table,
 )
+from fixbench.bench.reporting.verdict import show_verdict, verdict_table  # noqa: E402
 from fixbench.bench.running.provenance import host_key  # noqa: E402
+from fixbench.bench.running.rows import ORDER  # noqa: E402
 from fixbench.bench.running.store import load_curves, load_traces  # noqa: E402
 from fixbench.cases.references import check_sources  # noqa: E402
 from fixbench.solvers.registry import listing  # noqa: E402
@@ -250,6 +253,12 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
                     "stratified-bootstrap CI); last line: rliable's probability that a cell of the best learning "
                     "entry (MARL or bandit learners) ends with a lower relative regret than a cell of the best "
                     "other entry, with its 95 % CI (the two entries named).")
+            verdict = verdict_table(head)
+            if len(verdict):
+                w.table("verdict", verdict, show_verdict(verdict),
+                        "The answer, a line a case and track: do learning robots beat classical planners at equal "
+                        "samples? The best learning entry and the best other entry (the headline's), and P; yes "
+                        "where P's 95 % CI lies above 1/2, no where it lies below, level where it holds 1/2.")
     group = group_keys(rows)[1:]
     imp = improvement_table(rows, group)
     if imp.empty:
@@ -362,7 +371,7 @@ def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.Data
                     "deformation.")
     failed = rows[~rows["ok"]]
     if len(failed):
-        f = failed[["case", "material", "planner", "seed", "cell", "error"]].copy()
+        f = failed[[*ORDER, "cell", "error"]].copy()
         f["error"] = f["error"].str.slice(0, 120)
         w.table("failed", f, f, "Failed cells (left out of every statistic), with their error.")
     return sweep, profile

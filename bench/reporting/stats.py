@@ -18,7 +18,7 @@ import pandas as pd
 from scipy.stats import bootstrap, mannwhitneyu, trim_mean
 from scipy.stats import t as t_dist
 
-from fixbench.bench.running.keys import problem_of, reference_of
+from fixbench.bench.running.rows import PROFILE_PROBLEM, VARIED_SETTINGS, problem_of, reference_of
 
 #: the bootstrap's seed, resamples and confidence level
 BOOT_SEED = 20250101
@@ -26,8 +26,6 @@ N_BOOT = 2000
 LEVEL = 0.95
 #: runtime-to-target targets: relative gaps above the optimum (COCO)
 TARGETS = (0.01, 0.02, 0.05, 0.10, 0.20)
-#: settings that split the summary into separate groups when the run varies them
-SETTINGS = ("agents", "mode", "budget", "samples_per_task")
 
 
 # interval statistics ---------------------------------------------------------------------------------
@@ -190,12 +188,12 @@ def runtime(rec: dict, target: float) -> float:
 
 
 def performance_profile(ok_and_failed: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, dict]:
-    """Ratios objective / best objective per problem (case, material, seed, settings); failed or
-    missing runs have ratio inf. Returns the ratio table (problems x planners), a tau grid and
-    rho(tau) per planner."""
+    """Ratios objective / best objective per problem (:data:`~fixbench.bench.running.rows.PROFILE_PROBLEM`
+    and each of :data:`~fixbench.bench.running.rows.VARIED_SETTINGS` the run varies); failed or missing runs
+    have ratio inf. Returns the ratio table (problems x planners), a tau grid and rho(tau) per planner."""
     df = ok_and_failed.copy()
     df["obj"] = np.where(df["ok"], df["objective_m"], np.inf)
-    keys = ["case", "material", "seed"] + [k for k in SETTINGS if df[k].nunique() > 1]
+    keys = [*PROFILE_PROBLEM, *(k for k in VARIED_SETTINGS if df[k].nunique() > 1)]
     piv = df.pivot_table(index=keys, columns="label", values="obj", aggfunc="min", dropna=False)
     piv = piv.fillna(np.inf)
     best = piv.min(axis=1)

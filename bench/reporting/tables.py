@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.reporting.stats import SETTINGS, bootstrap_ci, iqm
+from fixbench.bench.reporting.stats import bootstrap_ci, iqm
 from fixbench.bench.running.cells import reference_bounds
+from fixbench.bench.running.rows import REFERENCE, VARIED_SETTINGS
 from fixbench.cases.errors import CaseError
 
 # formatting ------------------------------------------------------------------------------------------
@@ -34,12 +35,6 @@ def ci_text(p, lo, hi) -> str:
     if not np.isfinite(p):
         return "-"
     return f"{fmt(p)} [{fmt(lo)}, {fmt(hi)}]"
-
-
-def config_text(config) -> str:
-    """A row's planner config (a JSON object) as ``key=value,...`` in key order ('' for none): the
-    canonical text tables group and name planners by."""
-    return ",".join(f"{k}={v}" for k, v in sorted(config.items())) if isinstance(config, dict) else ""
 
 
 def ci_column(df: pd.DataFrame, name: str) -> list[str]:
@@ -63,8 +58,9 @@ def show_numbers(table: pd.DataFrame, digits: int = 3) -> pd.DataFrame:
 # the per-run tables ----------------------------------------------------------------------------------
 
 def group_keys(rows: pd.DataFrame) -> list[str]:
-    """``case`` and the SETTINGS the run varies; a sweep's budget follows from its samples a task."""
-    varied = [k for k in SETTINGS if rows[k].nunique(dropna=True) > 1]
+    """``case`` and the :data:`~fixbench.bench.running.rows.VARIED_SETTINGS` the run varies; a sweep's
+    budget follows from its samples a task."""
+    varied = [k for k in VARIED_SETTINGS if rows[k].nunique(dropna=True) > 1]
     if "samples_per_task" in varied:
         varied = [k for k in varied if k != "budget"]
     return ["case"] + varied
@@ -77,7 +73,7 @@ def summary_table(rows: pd.DataFrame) -> pd.DataFrame:
     for gk, g in rows.groupby(keys + ["label"], sort=True, dropna=False):
         gk = gk if isinstance(gk, tuple) else (gk,)
         ok = g[g["ok"]]
-        strata = list(zip(ok["material"], ok["agents"], ok["n_tasks"]))
+        strata = list(ok[list(REFERENCE[1:])].itertuples(index=False, name=None))  # a case's problems
         rec = dict(zip(keys + ["planner"], gk))
         rec.update(cells=len(g), failed=int((~g["ok"]).sum()))
         stats = {

@@ -21,7 +21,8 @@ import pandas as pd
 
 from fixbench.bench.running.matrix import Cell, task_subset
 from fixbench.bench.running.provenance import provenance
-from fixbench.bench.running.store import SCHEMA_VERSION, TRACE_COLUMNS
+from fixbench.bench.running.rows import SCHEMA_VERSION, planner_mode
+from fixbench.bench.running.store import TRACE_COLUMNS
 from fixbench.cases.problem import Problem, cached_problem
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD
 from fixbench.cases.spec import load_case_spec
@@ -137,7 +138,7 @@ def run_cell(cell: Cell, reference: dict | None) -> dict:
         t0, c0 = time.perf_counter(), time.process_time()
         planner = get(cell.planner)(**dict(cell.config))
         budget = cell.budget_for(p.n_tasks)
-        res = planner.solve(p, budget, seed=cell.seed, mode="per-task" if cell.mode == "held-out" else cell.mode,
+        res = planner.solve(p, budget, seed=cell.seed, mode=planner_mode(cell.mode),
                             train_tasks=cell.train_tasks(p.n_tasks))
         scores = metrics(res, reference)
         row.update(config_hash=res.config_hash, part=p.spec.part, material=res.material,

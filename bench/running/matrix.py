@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from fixbench.bench.running.keys import split
+from fixbench.bench.running.rows import DEFAULT_MODE, MODES
 from fixbench.cases.errors import CaseError
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import resolve_case
@@ -25,7 +26,6 @@ from fixbench.cases.units import Reader
 
 KEYS = ("name", "cases", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
         "tasks", "heldout_every", "proof_limit", "description")
-MODES = ("per-task", "shared", "held-out")
 
 
 @dataclass(frozen=True)
@@ -270,7 +270,7 @@ def load_matrix(path: str | Path) -> Matrix:
     agents = _list(r, "agents", int) if "agents" in data else [None]
     if any(a is not None and a < 1 for a in agents):
         raise r.error("agents", "must be at least 1")
-    modes = _list(r, "mode", str, ["per-task"])
+    modes = _list(r, "mode", str, [DEFAULT_MODE])
     for m in modes:
         if m not in MODES:
             raise r.error("mode", f"must be one of {', '.join(MODES)}, got '{m}'")

@@ -53,8 +53,16 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from fixbench.bench.running.cells import metrics, problem_for
-from fixbench.bench.running.keys import reference_key, reference_of, split
+from fixbench.bench.running.keys import split
 from fixbench.bench.running.matrix import task_subset
+from fixbench.bench.running.rows import (
+    SCHEMA_VERSION,
+    SHIPPED,
+    load_rows,
+    planner_mode,
+    reference_key,
+    reference_of,
+)
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.cases.references import case_fingerprint, load_reference, write_reference
@@ -379,15 +387,14 @@ def update(run_dir, echo=print, folder=None) -> dict:
     """
     from pathlib import Path
 
-    from fixbench.bench.running.store import load_results
     from fixbench.cases.references import reference_path
     from fixbench.cases.spec import case_names
 
-    rows = load_results(run_dir)
-    rows = rows[(rows["error"].fillna("") == "") & rows["mode"].isin(["per-task", "held-out"])
+    rows = load_rows(run_dir)
+    rows = rows[rows["ok"] & rows["mode"].isin(["per-task", "held-out"])
                 & rows["case"].isin(case_names()) & rows["per_task_m"].notna()]
     changed: dict[str, int] = {}
-    for (case, material, agents), group in rows.groupby(["case", "material", "agents"], sort=True):
+    for (case, material, agents), group in rows.groupby(list(SHIPPED), sort=True):
         ref = load_reference(case, material, int(agents), folder)
         if ref is None:
             echo(f"{case}/{material}/{int(agents)} agents: no shipped reference; skipped "
@@ -435,7 +442,7 @@ class _Scored:
 
     def __init__(self, row: dict, trace: np.ndarray):
         self.max_deformation = np.asarray(row["per_task_m"], dtype=float)
-        self.mode = "per-task" if row["mode"] == "held-out" else row["mode"]
+        self.mode = planner_mode(row["mode"])
         n, k = len(self.max_deformation), row.get("heldout_every")
         self.layouts = np.empty((n, int(row["agents"])))  # metrics reads only its shape (tasks, agents)
         self.held_out = None
@@ -465,7 +472,7 @@ def rescore(run_dir, echo=print) -> int:
 
     import pandas as pd
 
-    from fixbench.bench.running.store import SCHEMA_VERSION, Store, write_json_atomic
+    from fixbench.bench.running.store import Store, write_json_atomic
 
     store = Store(run_dir)
     rows = store.finished()

@@ -21,10 +21,10 @@ import pandas as pd
 from tqdm import tqdm
 
 from fixbench.bench.running.cells import base_row, problem_for
-from fixbench.bench.running.keys import reference_key
 from fixbench.bench.running.matrix import find_matrix, load_matrix
 from fixbench.bench.running.proof import Proof
 from fixbench.bench.running.references import enumerates
+from fixbench.bench.running.rows import ONLY_KEYS, reference_key
 from fixbench.bench.running.store import Store, write_json_atomic
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
@@ -301,9 +301,6 @@ def _hms(s: float) -> str:
         return "?"
     s = int(s)
     return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
-ONLY_KEYS = ("case", "material", "mode", "seed", "samples_per_task")
 
 
 def selection(cells, only: tuple[str, ...]):
