@@ -8,6 +8,7 @@ reference.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,20 @@ def test_readme_tables_are_the_committed_reports(doc):
         path = readme.parent / m["path"]
         assert path.is_file(), m["path"]
         assert m["body"] == path.read_text(encoding="utf-8").rstrip("\n") + "\n", f"{m['path']}: README is stale"
+
+
+def test_the_readme_states_no_result_by_hand():
+    """The README is at most 300 lines, and every result figure in it (a percentage, a probability's
+    interval) sits in a table `fixbench report --readme` writes: outside those blocks only the bootstrap
+    interval's "95 %" is a percentage, and the answer is a generated table, never prose to keep in step."""
+    from fixbench.bench.reporting.tables import TABLE_BLOCK
+
+    text = (ROOT.parent / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 300
+    assert "<!-- table: results/paper/report/tables/verdict.md -->" in text
+    prose = TABLE_BLOCK.sub("", text)
+    assert set(re.findall(r"\d[\d.,]*\s?%", prose)) <= {"95 %"}, re.findall(r".*\d[\d.,]*\s?%.*", prose)
+    assert not re.search(r"P = \d|\[\d[\d.]*, \d[\d.]*\]", prose)
 
 
 def test_refresh_readme_copies_only_this_reports_tables(tmp_path):

@@ -81,3 +81,25 @@ def test_rows_follow_the_matrix_order_of_the_cases(tmp_path):
     (tmp_path / "matrix.toml").write_text('cases = ["c", "b"]\n')
     assert in_matrix_order(rows, tmp_path)["seed"].tolist() == [2, 0, 3, 1]  # a case not listed: after
     assert in_matrix_order(rows, tmp_path / "nowhere")["seed"].tolist() == [0, 1, 2, 3]
+
+
+def test_the_verdict_is_the_interval_of_p():
+    """bench/reporting/verdict.py: yes above 1/2, no below, level where P's interval holds 1/2; a line a
+    headline column, with the two entries the P line names and their IQMs."""
+    import pandas as pd
+
+    from fixbench.bench.reporting.verdict import answer, verdict_table
+
+    assert (answer(0.51, 1), answer(0, 0.49), answer(0.2, 0.6), answer(0.5, 0.5)) == ("yes", "no", "level", "level")
+    head = pd.DataFrame([
+        ("marl", "panel (per-task)", "vdn", 3.0, 2.0, 4.0),
+        ("evolutionary", "panel (per-task)", "pso", 9.0, 8.0, 10.0),
+        ("P(learner < classical)", "panel (per-task)", "vdn vs pso", 0.9, 0.7, 1.0),
+        ("marl", "fan", "qmix", 90.0, 80.0, 99.0),
+        ("local-search", "fan", "local", 0.0, 0.0, 0.0),
+        ("P(learner < classical)", "fan", "qmix vs local", 0.1, 0.0, 0.3),
+    ], columns=["family", "column", "entry", "iqm", "iqm_lo", "iqm_hi"])
+    v = verdict_table(head)
+    assert v[["part", "track", "answer", "learner", "classical"]].values.tolist() == [
+        ["panel", "per-task", "yes", "vdn", "pso"], ["fan", "-", "no", "qmix", "local"]]
+    assert v["classical_iqm"].tolist() == [9.0, 0.0] and v["p_hi"].tolist() == [1.0, 0.3]

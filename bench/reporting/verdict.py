@@ -32,7 +32,8 @@ def verdict_table(head: pd.DataFrame) -> pd.DataFrame:
     recs = []
     for _, p in head[head["family"] == P_LINE].iterrows():
         learner, classical = p["entry"].split(" vs ", 1)
-        part, track = re.fullmatch(r"(.+) \((.+)\)", p["column"]).groups()
+        named = re.fullmatch(r"(.+) \((.+)\)", p["column"])  # "CASE (TRACK)"; a run of one mode: "CASE"
+        part, track = named.groups() if named else (p["column"], "-")
         rec = {"part": part, "track": track, "answer": answer(p["iqm_lo"], p["iqm_hi"])}
         for role, label in (("learner", learner), ("classical", classical)):
             row = head[(head["column"] == p["column"]) & (head["entry"] == label) & (head["family"] != P_LINE)].iloc[0]
