@@ -1,7 +1,7 @@
 """fixbench's harness: benchmark matrices, executors, the results store, reports and the CLI.
 
 ``load_results`` (a run's rows as stored) and ``load_rows`` (the table the reports read: labels, ``ok``,
-defaults; :mod:`fixbench.bench.running.rows`) are imported on first use (PEP 562): the CLI starts
+defaults; :mod:`fixbench.bench.records.rows`) are imported on first use (PEP 562): the CLI starts
 without pandas.
 """
 

@@ -19,9 +19,9 @@ Five checks, each a section of the result (:func:`check_case`):
   beyond it: the layouts a planner meets then lie outside the model (the best random layout and
   the worst are reported too).
 - **reference**: layouts a position (the joint size), what a matrix's reference phase costs
-  (:func:`fixbench.bench.running.references.compute_reference`: ``exact``'s enumeration up to its
+  (:func:`fixbench.bench.references.prove.compute_reference`: ``exact``'s enumeration up to its
   ``max_enumeration``, else its MILP up to ``max_milp_columns``, else nothing) and what the
-  reference portfolio of ``fixbench references build`` costs (:class:`~fixbench.bench.running.references.Portfolio`,
+  reference portfolio of ``fixbench references build`` costs (:class:`~fixbench.bench.references.build.Portfolio`,
   an upper bound of its samples; with the ``exact`` proof where joint size x tasks is at most
   ``prove_limit``), in samples and in seconds on this machine from the oracle's time per layout,
   measured here: in batches of ``batch`` layouts (enumeration) and one at a time (planners: their
@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from fixbench.bench.analysis.perf import median_time
-from fixbench.bench.running.references import Portfolio
+from fixbench.bench.references.build import Portfolio
 from fixbench.cases.linearity import LIMIT
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.problem import Problem, load_problem

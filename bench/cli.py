@@ -322,7 +322,7 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
     cls = get(planner_name)
     planner = cls(**apply_sets(cls.Config, sets, cls.name))
     problem = _problem(case, material, agents, fixtures_per_agent)
-    from fixbench.bench.running.keys import split
+    from fixbench.bench.records.keys import split
 
     train = None if heldout_every is None else split(problem.n_tasks, heldout_every)[0]
     result = planner.solve(problem, budget, seed=seed, mode=mode, train_tasks=train)
@@ -624,7 +624,7 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
     """Run the reference portfolio on CASE and write (or improve) its shipped reference."""
     from dataclasses import replace
 
-    from fixbench.bench.running.references import Portfolio, build_and_write
+    from fixbench.bench.references.build import Portfolio, build_and_write
 
     effort = Portfolio()
     if samples_per_task is not None:
@@ -639,13 +639,15 @@ def references_build(case, material, agents, samples_per_task, rounds, planners,
 
 @references.command("update")
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("rescore_dirs", nargs=-1, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),
               help="References folder (default: the catalog's).")
-def references_update(run_dir, out) -> None:
-    """Replace shipped reference layouts that any run in RUN_DIR beats (re-measured first)."""
-    from fixbench.bench.running.references import update
+def references_update(run_dir, rescore_dirs, out) -> None:
+    """The loop: merge into the shipped references every layout of RUN_DIR that beats them (re-measured
+    first), then rescore RUN_DIR and each RESCORE_DIR against the references as they now are."""
+    from fixbench.bench.references.update import update
 
-    changed = update(run_dir, echo=lambda m: click.echo(m, err=True), folder=out)
+    changed = update(run_dir, rescore_dirs, echo=lambda m: click.echo(m, err=True), folder=out)
     click.echo(f"{sum(changed.values())} tasks replaced in {len(changed)} reference files")
 
 
@@ -653,7 +655,7 @@ def references_update(run_dir, out) -> None:
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def references_rescore(run_dir) -> None:
     """Recompute RUN_DIR's regret columns against the shipped references as they are now."""
-    from fixbench.bench.running.references import rescore
+    from fixbench.bench.references.score import rescore
 
     rescore(run_dir, echo=click.echo)
 
@@ -672,7 +674,7 @@ def references_rescore(run_dir) -> None:
               help="References folder (default: the catalog's).")
 def references_bound(case, material, agents, time_limit, method, tasks, out) -> None:
     """Certified lower bounds on CASE's shipped reference, written into it (docs/references.md#lower-bounds)."""
-    from fixbench.bench.running.references import bound
+    from fixbench.bench.references.bound import bound
 
     try:
         ids = None if tasks is None else [int(x) for x in tasks.split(",") if x.strip()]
@@ -689,7 +691,7 @@ def references_bound(case, material, agents, time_limit, method, tasks, out) -> 
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as strict JSON.")
 def references_check(as_json) -> None:
     """Run the portfolio on every *_small case and compare with exact's proven optima."""
-    from fixbench.bench.running.references import check_small
+    from fixbench.bench.references.build import check_small
 
     rows = check_small(echo=lambda r: None if as_json else click.echo(r))
     if as_json:

@@ -1,6 +1,6 @@
 """What every fixbench command line shares: strict JSON output and one way to run a click command.
 
-:mod:`fixbench.bench.cli` (the ``fixbench`` command), :mod:`fixbench.bench.running.references` and the
+:mod:`fixbench.bench.cli` (the ``fixbench`` command), :mod:`fixbench.bench.references` and the
 repository's studies (``studies/``, not installed) run their click commands through :func:`run_command`,
 so a user error reads the same everywhere. This module imports no other module of fixbench.bench, so
 that any of them can import it.

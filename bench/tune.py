@@ -12,7 +12,7 @@ the tuned configuration is never worse than the defaults on the tuning problems.
 cases are accepted: the paper's parts (and anything a matrix reports) are never tuned on.
 
 Each track is tuned for itself (``track``): ``per-task`` as above; ``held-out`` on the held-out split of
-the same cases (:func:`fixbench.bench.running.keys.split`, every ``heldout_every``-th position: the
+the same cases (:func:`fixbench.bench.records.keys.split`, every ``heldout_every``-th position: the
 planner pays ``samples_per_task`` on each training position and acts on the others with no sample), the
 objective its regret on the held-out positions alone. What wins searching each position rarely carries
 to positions never sampled, so a configuration tuned on one track is not the other's.
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fixbench.bench.running.keys import split
+from fixbench.bench.records.keys import split
 from fixbench.bench.running.matrix import FIGURES, TRACKS, read_figures
 from fixbench.cases.errors import CaseError
 
@@ -75,8 +75,8 @@ def _suggest(trial, key: str, s: tuple):
 def _tuning_problem(case: str) -> tuple:
     """A tuning case's problem and its proven optimum of each position (``exact``: minutes of CPU, so
     computed once a process)."""
-    from fixbench.bench.running.cells import problem_for
-    from fixbench.bench.running.references import compute_reference
+    from fixbench.bench.references.prove import compute_reference
+    from fixbench.cases.problem import problem_for
 
     ref = compute_reference(case, None, None, None, ("per-task",))
     if ref["error"] or ref["per_task"] is None:

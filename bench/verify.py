@@ -12,7 +12,7 @@ and prints, per cell, the committed and the new scored value (``objective_m``):
   ``same_on_every_host = False``) agrees when it does so to 1e-9 (the same code path), else when the
   new value falls within its group's 95 % prediction interval over seeds
   (:func:`fixbench.bench.reporting.stats.prediction_interval`; the group: the row's replicates, its planner
-  entry on the same settings with every seed, :data:`fixbench.bench.running.rows.REPLICATES`);
+  entry on the same settings with every seed, :data:`fixbench.bench.records.rows.REPLICATES`);
 
 and, for every cell, where this host's code path (CPU, BLAS, threads, switches, library versions;
 :mod:`fixbench.bench.running.provenance`) differs from the one the row records. The command exits 1 when a
@@ -33,14 +33,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from fixbench.bench.records.rows import REPLICATES, load_rows, reference_key
+from fixbench.bench.records.store import Store
 from fixbench.bench.reporting.merge import load_references
 from fixbench.bench.reporting.report import check_scored_references
 from fixbench.bench.reporting.stats import LEVEL, prediction_interval
 from fixbench.bench.running.matrix import load_matrix
 from fixbench.bench.running.provenance import provenance
-from fixbench.bench.running.rows import REPLICATES, load_rows, reference_key
 from fixbench.bench.running.runner import make_executor, selection, worker_env
-from fixbench.bench.running.store import Store
 from fixbench.cases.errors import CaseError
 
 #: relative tolerance of an agreement to the bit (references count a layout better by this margin)

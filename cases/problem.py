@@ -408,3 +408,22 @@ def load_problem(case: str | Path, material: str | None = None, agents: int | No
     """A problem from a catalog name or a TOML path, optionally with another material, agent count
     or number of pads per agent."""
     return Problem(load_case_spec(case, material, agents, fixtures_per_agent), mesh_scale)
+
+
+def task_subset(n_tasks: int, wanted: int | None) -> list[int]:
+    """``wanted`` tasks spread evenly over ``n_tasks`` (all when None or too many): the tasks of a
+    problem that a matrix or a regret reference restricts to ``tasks: N``."""
+    if wanted is None or wanted >= n_tasks:
+        return list(range(n_tasks))
+    return sorted({int(round(x)) for x in np.linspace(0, n_tasks - 1, wanted)})
+
+
+def problem_for(case: str, material: str | None, agents: int | None, tasks: int | None) -> Problem:
+    """The problem of a catalog case or TOML path on ``tasks`` of its tasks (:func:`task_subset`; all
+    when None), from the process's problem cache (:func:`cached_problem`), which keeps the latest one
+    only (a benchmark worker gets its jobs grouped by problem)."""
+    def build() -> Problem:
+        spec = load_case_spec(case, material, agents)
+        return Problem(spec.with_tasks(task_subset(len(spec.tasks), tasks)))
+
+    return cached_problem((case, material, agents, tasks), build)

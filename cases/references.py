@@ -2,7 +2,7 @@
 
 Where ``exact`` cannot run (the full parts: millions of layouts per agent set), regret needs a
 reference that no planner beats. It is found offline by a search portfolio (``fixbench references
-build``, see :mod:`fixbench.bench.running.references`), which is not a planner of the benchmark and is never
+build``, see :mod:`fixbench.bench.references.build`), which is not a planner of the benchmark and is never
 counted, and it is shipped here as versioned data: one JSON file per (case, material, agents) in
 ``cases/catalog/references/``.
 
@@ -17,7 +17,7 @@ File format (``FORMAT`` 1)::
 
 ``status`` is ``proven`` only where a proof exists (an exhaustive enumeration, or a bound that
 closes the gap); ``lower_bound_m`` holds a certified lower bound on the position's optimum where one
-was computed (``fixbench references bound``: :mod:`fixbench.solvers.bound`), null elsewhere; a bound
+was computed (``fixbench references bound``: :mod:`fixbench.bench.references.compliance_bound`), null elsewhere; a bound
 above the layout's own value is refused like a damaged table. The content
 hash lets a reader check that the table was not edited by hand; the fingerprint says which case
 definition the layouts were measured on: a reference whose case changed is *stale* and is not used.

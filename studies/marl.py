@@ -263,7 +263,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     """A learner trained on some tasks, acting on the others with no samples, beside planners that spend
     ``per_task`` samples on every held-out task.
 
-    The split is the harness's held-out track (:func:`fixbench.bench.running.keys.split`): the
+    The split is the harness's held-out track (:func:`fixbench.bench.records.keys.split`): the
     learner trains on tasks 0, ``every``, 2 ``every``, ... for ``episodes`` episodes, through
     ``Planner.solve(train_tasks=...)`` as a held-out cell does; its greedy policy's layouts on the other
     tasks cost nothing (``train_policy_um``: the same policy on its training tasks, ``train_best_seen_um``:
@@ -271,7 +271,7 @@ def heldout(case: str = "wing_panel", planner: str = "nashq", every: int = 5, ep
     Gap: mean max deformation over the held-out tasks against the best layout any of these runs found on
     each task (no proven optimum at this size).
     """
-    from fixbench.bench.running.keys import split
+    from fixbench.bench.records.keys import split
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.registry import get
 

@@ -1,16 +1,16 @@
-"""Certified lower bounds (solvers/bound.py): every node's bound is at most every completion's value,
-and branch-and-bound run to the end finds exact's proven optimum."""
+"""Certified lower bounds (bench/references/compliance_bound.py): every node's bound is at most every
+completion's value, and branch-and-bound run to the end finds exact's proven optimum."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from fixbench.bench.references.compliance_bound import BoundConfig, ComplianceBound, lower_bound
+from fixbench.bench.references.zone_bound import ZoneBound, ZoneConfig
 from fixbench.cases.problem import decode_layouts, load_problem
 from fixbench.cases.spec import case_names, load_case_spec
 from fixbench.solvers import get
-from fixbench.solvers.bound import BoundConfig, ComplianceBound, lower_bound
-from fixbench.solvers.zone_bound import ZoneBound, ZoneConfig
 
 POINTS = ("points_mm = [[100, 50], [100, 150], [200, 50], [200, 150], [300, 50], [300, 150]]",
           "points_mm = [[100, 50], [100, 150], [150, 100], [200, 50], [200, 150], [250, 100], "

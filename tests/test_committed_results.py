@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fixbench.bench.records.rows import load_results
 from fixbench.bench.reporting.merge import load_references
-from fixbench.bench.running.matrix import task_subset
-from fixbench.bench.running.rows import load_results
+from fixbench.cases.problem import task_subset
 from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"

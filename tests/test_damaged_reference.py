@@ -14,8 +14,8 @@ import pytest
 
 import fixbench.cases.references as refs
 from fixbench.bench.cli import main
-from fixbench.bench.running.rows import ROW_SCHEMA
-from fixbench.bench.running.store import Store
+from fixbench.bench.records.rows import ROW_SCHEMA
+from fixbench.bench.records.store import Store
 from fixbench.cases.errors import CaseError
 
 FILE = "wing_panel__aluminium__a5.json"

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 import fixbench
-from fixbench.bench.running.rows import ROW_SCHEMA
+from fixbench.bench.records.rows import ROW_SCHEMA
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -151,7 +151,7 @@ def test_documented_row_schema_matches_code():
     names = [n for n, _ in documented]
     code = list(ROW_SCHEMA)
     assert names == code, (
-        "docs/rows.md and bench/running/rows.py ROW_SCHEMA list different row fields"
+        "docs/rows.md and bench/records/rows.py ROW_SCHEMA list different row fields"
         f"\n  only in docs/rows.md: {[n for n in names if n not in code]}"
         f"\n  only in ROW_SCHEMA: {[n for n in code if n not in names]}"
         f"\n  order: docs  {names}\n         code   {code}")

@@ -12,6 +12,8 @@ import pytest
 from conftest import strict_json_loads
 
 from fixbench.bench.cli import cli, main
+from fixbench.bench.records.rows import ROW_SCHEMA, load_results
+from fixbench.bench.records.store import load_curves, load_traces
 from fixbench.bench.reporting.export import (
     DAT_HEADER,
     FORMATS,
@@ -24,9 +26,7 @@ from fixbench.bench.reporting.export import (
     read_iohprofiler,
     strict_json,
 )
-from fixbench.bench.running.rows import ROW_SCHEMA, load_results
 from fixbench.bench.running.runner import run_matrix
-from fixbench.bench.running.store import load_curves, load_traces
 
 # every mode, a classical planner (small batches: several trace rows a task) and a learner with a
 # few episodes; iql has no shared mode, so two of its cells fail (rows with an error)

@@ -19,9 +19,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fixbench.bench.cli import main
-from fixbench.bench.running.rows import CHECKSUM, load_results
+from fixbench.bench.records.rows import CHECKSUM, load_results
+from fixbench.bench.records.store import Store, load_traces
 from fixbench.bench.running.runner import run_matrix
-from fixbench.bench.running.store import Store, load_traces
 
 TINY = """
 name = "tiny"

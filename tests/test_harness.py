@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.rows import ROW_SCHEMA, load_results
 from fixbench.bench.running.matrix import load_matrix
-from fixbench.bench.running.rows import ROW_SCHEMA, load_results
 from fixbench.bench.running.runner import run_matrix
 
 TINY = """

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from fixbench.bench.records.rows import in_matrix_order
 from fixbench.bench.reporting.comparison import (
     _scored,
     common_ranks,
@@ -17,7 +18,6 @@ from fixbench.bench.reporting.comparison import (
 )
 from fixbench.bench.reporting.merge import load_runs
 from fixbench.bench.reporting.stats import probability_of_improvement
-from fixbench.bench.running.rows import in_matrix_order
 
 #: greedy stands in for a learner, so that the last line has two sides
 FAMILY = {"random": "random", "greedy": "marl", "local": "local-search"}

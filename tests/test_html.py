@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 from test_report import fake_run
 
+from fixbench.bench.records.store import Store
 from fixbench.bench.reporting.report import make_report
 from fixbench.bench.running.provenance import provenance
-from fixbench.bench.running.store import Store
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 

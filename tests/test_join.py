@@ -99,7 +99,7 @@ def test_the_merged_report_equals_the_extended_copys(journey):
 
 def _rewrite(run: Path, change) -> None:
     """Change every row of ``run`` with ``change(row)`` and keep its checksum valid."""
-    from fixbench.bench.running.store import Store
+    from fixbench.bench.records.store import Store
 
     store = Store(run)
     for row in store.finished().values():

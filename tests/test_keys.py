@@ -1,4 +1,4 @@
-"""The keys that group rows (bench/running/rows.py) and the held-out split (bench/running/keys.py): one
+"""The keys that group rows (bench/records/rows.py) and the held-out split (bench/records/keys.py): one
 definition each, and every user of the split gets the same positions."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import math
 import pandas as pd
 import pytest
 
-from fixbench.bench.running.keys import split
+from fixbench.bench.records.keys import split
+from fixbench.bench.records.rows import PROBLEM, RANKED, REFERENCE, problem_of, reference_key, reference_of
 from fixbench.bench.running.matrix import Cell
-from fixbench.bench.running.rows import PROBLEM, RANKED, REFERENCE, problem_of, reference_key, reference_of
 
 
 @pytest.mark.parametrize("n, every", [(10, 2), (7, 3), (5, 5), (1, 2), (0, 4)])

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.rows import load_results
+from fixbench.bench.records.store import load_curves
 from fixbench.bench.reporting.figures import FIGURE4_CURVES, draw_figure4, learner_runs, plt
 from fixbench.bench.reporting.report import learner_cells
-from fixbench.bench.running.rows import load_results
-from fixbench.bench.running.store import load_curves
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = "my_learner:EpsGreedy"

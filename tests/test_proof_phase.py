@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from fixbench.bench.cli import main
-from fixbench.bench.running import proof as proof_module
+from fixbench.bench.references import prove as proof_module
+from fixbench.bench.references.prove import compute_reference
 from fixbench.bench.running.matrix import load_matrix
-from fixbench.bench.running.references import compute_reference
 from fixbench.bench.running.runner import run_matrix
 
 POSITIONS = 6

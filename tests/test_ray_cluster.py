@@ -16,8 +16,8 @@ import psutil
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.rows import load_results
 from fixbench.bench.running.executors import RayExecutor
-from fixbench.bench.running.rows import load_results
 
 ray = pytest.importorskip("ray")
 

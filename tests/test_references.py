@@ -1,4 +1,4 @@
-"""Shipped regret references: format and checks, the portfolio, the harness's fallback, updates.
+"""Shipped regret references: format and checks, the portfolio, the harness's fallback, the update loop.
 
 The portfolio runs here on a tiny problem (fan_small with 2 agents: 42 x 42 layouts, 6 tasks) where
 the proven optimum is known by enumeration.
@@ -7,14 +7,19 @@ the proven optimum is known by enumeration.
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
 
 import fixbench.cases.references as refs
-from fixbench.bench.running.references import Portfolio, bound, build, compute_reference, rescore, update
-from fixbench.bench.running.rows import CHECKSUM, row_checksum
-from fixbench.bench.running.store import Store, write_json_atomic
+from fixbench.bench.records.rows import CHECKSUM, row_checksum
+from fixbench.bench.records.store import Store, write_json_atomic
+from fixbench.bench.references.bound import bound
+from fixbench.bench.references.build import Portfolio, build
+from fixbench.bench.references.prove import compute_reference
+from fixbench.bench.references.score import rescore
+from fixbench.bench.references.update import update
 from fixbench.cases.errors import CaseError
 from fixbench.cases.problem import Problem
 from fixbench.cases.spec import load_case_spec
@@ -118,8 +123,11 @@ def test_update_merges_only_verified_improvements_and_rescores(tiny, built, fold
     liar = dict(honest, cell="liar", layouts=json.dumps([bad] * 6), per_task_m=json.dumps([1e-9] * 6))
     for row in (honest, liar):  # with their checksums, as the store writes rows
         write_json_atomic(store.row_path(row["cell"]), row | {CHECKSUM: row_checksum(row)})
-    changed = update(run, echo=lambda m: None)
+    other = tmp_path / "other"  # another run scored against the same reference: the loop rescores it too
+    shutil.copytree(run, other)
+    changed = update(run, [other], echo=lambda m: None)
     assert list(changed.values()) == [1]
+    assert Store(other).finished()["honest"]["relative_regret"] == pytest.approx(0.0, abs=1e-12)
     now = refs.load_reference("fan_small", built["material"], 2)
     assert now["tasks"][1]["layout"] == good[1] and now["tasks"][0] == built["tasks"][0]
     assert now["tasks"][1]["lower_bound_m"] == lower and now["tasks"][1]["status"] == "best-known"
@@ -203,8 +211,7 @@ def test_a_bound_above_the_reference_is_refused(built, folder, capsys):
 def test_regret_is_bracketed_by_the_reference_and_its_bound(tiny, built):
     """[regret against the reference, regret against the bounds] holds the true regret (against exact's
     optimum) in every mode: a position without a bound counts as 0, none at all gives no upper end."""
-    from fixbench.bench.running.cells import metrics
-    from fixbench.bench.running.references import _Scored
+    from fixbench.bench.references.score import _Scored, metrics
 
     opt = get("exact")().solve(tiny, None).max_deformation
     worse = np.array([t["max_deformation_m"] for t in built["tasks"]]) * (1 + np.arange(6) / 50)  # >= opt
@@ -231,7 +238,7 @@ def test_regret_is_bracketed_by_the_reference_and_its_bound(tiny, built):
 
 
 def test_check_small_counts_tasks_at_the_optimum():
-    from fixbench.bench.running.references import check_small
+    from fixbench.bench.references.build import check_small
 
     rows = check_small(cases=("fan_small",), materials=("steel",), effort=TINY, echo=lambda r: None)
     assert len(rows) == 1 and rows[0]["tasks"] == 6

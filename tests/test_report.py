@@ -17,14 +17,14 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.rows import ROW_SCHEMA, load_results, load_rows
+from fixbench.bench.records.store import Store, write_json_atomic
 from fixbench.bench.reporting.comparison import heldout_table, improvement_table, main_table, sweep_table
 from fixbench.bench.reporting.figures import anytime_figure, ecdf_figure, sweep_figure, violin_figure
 from fixbench.bench.reporting.merge import load_references
 from fixbench.bench.reporting.report import make_report
 from fixbench.bench.reporting.stats import bootstrap_ci, iqm, probability_of_improvement
 from fixbench.bench.reporting.tables import summary_table
-from fixbench.bench.running.rows import ROW_SCHEMA, load_results, load_rows
-from fixbench.bench.running.store import Store, write_json_atomic
 
 OPT = {"aluminium": [2e-5, 4e-5], "steel": [1e-5, 2e-5]}
 PLANNERS = {"random": 1.5, "greedy": 1.2, "nashq": 1.8}  # final objective / optimum

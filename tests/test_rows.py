@@ -2,7 +2,7 @@
 missing number as null; schema-1 files (those columns as JSON text) and schema-2 files (a missing
 number as NaN) still read, to the same in-memory row; a damaged row of any schema is refused; a
 rewrite upgrades an older row to schema 3. The one loader (``load_rows``) gives an early row's defaults,
-and no module of the harness but bench/running/rows.py spells out a key that groups rows."""
+and no module of the harness but bench/records/rows.py spells out a key that groups rows."""
 
 from __future__ import annotations
 
@@ -17,8 +17,7 @@ import pytest
 from conftest import strict_json_loads
 
 import fixbench.bench
-from fixbench.bench.reporting.html_report import provenance_html
-from fixbench.bench.running.rows import (
+from fixbench.bench.records.rows import (
     CHECKSUM,
     JSON_COLUMNS,
     NUMBERS,
@@ -30,7 +29,8 @@ from fixbench.bench.running.rows import (
     load_rows,
     row_checksum,
 )
-from fixbench.bench.running.store import Store, write_json_atomic
+from fixbench.bench.records.store import Store, write_json_atomic
+from fixbench.bench.reporting.html_report import provenance_html
 
 #: the JSON columns of one cell, as values
 VALUES = {"config": {"batch": 5, "shape": [2, 3]}, "per_task_m": [1.25e-5, 2.5e-5, 3.0e-5],
@@ -162,7 +162,7 @@ def test_the_loader_gives_an_early_row_its_defaults(tmp_path):
 
 BENCH = Path(fixbench.bench.__path__[0])
 #: the one module that spells out the columns rows group by
-ROWS_MODULE = BENCH / "running" / "rows.py"
+ROWS_MODULE = BENCH / "records" / "rows.py"
 #: frame methods whose column arguments group, order or pick rows
 FRAME_CALLS = {"groupby", "sort_values", "pivot_table", "pivot", "drop_duplicates", "duplicated", "dropna",
                "set_index", "merge", "value_counts"}
@@ -205,12 +205,12 @@ def keys_of_its_own(source: str) -> list[int]:
 
 
 def test_no_module_of_the_harness_defines_a_row_key_of_its_own():
-    """Every grouping of rows by their problem comes from bench/running/rows.py (REFERENCE, PROBLEM,
+    """Every grouping of rows by their problem comes from bench/records/rows.py (REFERENCE, PROBLEM,
     RANKED, SETTINGS, ...): a module of bench/ that writes its own tuple of those columns, or groups by a
     literal list of them, defines a second key that can drift from the first."""
     wrong = [f"{p.relative_to(BENCH)}:{line}" for p in sorted(BENCH.rglob("*.py")) if p != ROWS_MODULE
              for line in keys_of_its_own(p.read_text(encoding="utf-8"))]
-    assert not wrong, "keys of their own (use those of bench/running/rows.py): " + ", ".join(wrong)
+    assert not wrong, "keys of their own (use those of bench/records/rows.py): " + ", ".join(wrong)
 
 
 def test_the_check_finds_a_key_of_its_own():

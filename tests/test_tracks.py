@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.rows import load_results
 from fixbench.bench.running.matrix import load_matrix
-from fixbench.bench.running.rows import load_results
 from fixbench.bench.running.runner import run_matrix
 
 TRACKS = """

@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 
 from fixbench.bench.cli import main
+from fixbench.bench.records.store import Store
 from fixbench.bench.reporting.stats import prediction_interval
 from fixbench.bench.running.provenance import provenance
-from fixbench.bench.running.store import Store
 from fixbench.bench.verify import code_path_note, sample
 
 MATRIX = """name = "tiny"

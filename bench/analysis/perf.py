@@ -84,7 +84,7 @@ def run_planner_perf(case: str, planner: str, sets: tuple[str, ...], vary: str, 
     ``info`` (``time_*_s``, wall seconds), the samples and the score (mean incumbent max deformation,
     and the policy's where the planner returns one), and each run's CPU time as a ratio of the first's.
     """
-    from fixbench.bench.running.keys import split
+    from fixbench.bench.records.keys import split
     from fixbench.solvers.base import PlannerError
     from fixbench.solvers.config import apply_sets
     from fixbench.solvers.registry import get

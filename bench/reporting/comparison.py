@@ -20,8 +20,8 @@ Scoring (docs/protocol.md#scoring): per-task and shared cells are scored by each
 (the best layout it evaluated on a task), held-out cells by the layouts returned on the held-out tasks;
 a learner's policy is never in the ranking, only in ``policy_table``.
 
-Every table takes a run's rows as :func:`fixbench.bench.running.rows.load_rows` gives them (``label``, ``ok``,
-``mode`` filled in) and groups them by the keys of :mod:`fixbench.bench.running.rows`.
+Every table takes a run's rows as :func:`fixbench.bench.records.rows.load_rows` gives them (``label``, ``ok``,
+``mode`` filled in) and groups them by the keys of :mod:`fixbench.bench.records.rows`.
 Relative regret is ``objective / reference objective - 1`` (:mod:`fixbench.bench.running.cells`); every statistic leaves
 failed cells out (the main table's rank counts them last). Confidence intervals are 95 % percentile
 bootstraps (:func:`fixbench.bench.reporting.stats.mean_ci`,
@@ -36,10 +36,10 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from fixbench.bench.records.keys import split
+from fixbench.bench.records.rows import RANKED, budget_level, reference_of, with_case_defaults
 from fixbench.bench.reporting.stats import bootstrap_ci, iqm, mean_ci, probability_of_improvement
 from fixbench.bench.reporting.tables import ci_column, fmt, setting_text
-from fixbench.bench.running.keys import split
-from fixbench.bench.running.rows import RANKED, budget_level, reference_of, with_case_defaults
 
 #: the headline's families of planners (``Planner.family``), in its order, with their headings; a family
 #: not listed (a plugin's own) follows under its own name
@@ -189,8 +189,8 @@ def problem_ranks(rows: pd.DataFrame) -> pd.DataFrame:
     """Rank of each planner label on each problem (case x material x seed x agents x tasks x mode x
     budget level): 1 = lowest objective, failed cells last (ties share the mean rank). A cell without a
     budget level (a planner with its own budget, e.g. ``exact`` unlimited) competes at every level of its
-    other keys; planners without a cell on a problem take no part in it (:data:`~fixbench.bench.running.rows.RANKED`,
-    :func:`~fixbench.bench.running.rows.budget_level`)."""
+    other keys; planners without a cell on a problem take no part in it (:data:`~fixbench.bench.records.rows.RANKED`,
+    :func:`~fixbench.bench.records.rows.budget_level`)."""
     keys = list(RANKED)
     rows = with_case_defaults(rows)
     d = rows.assign(level=budget_level(rows),

@@ -3,8 +3,8 @@
 Why: fixbench's own report (:mod:`fixbench.bench.reporting.report`) is one view of a run; IOHanalyzer (fixed-target
 and fixed-budget runtime statistics, ERT, ECDFs), marl-eval (BenchMARL's rliable-based aggregation)
 and any spreadsheet or R session are others. Everything is read back through the results store
-(rows: :func:`fixbench.bench.running.rows.load_rows`; anytime traces, learners' curves:
-:mod:`fixbench.bench.running.store`); nothing is recomputed.
+(rows: :func:`fixbench.bench.records.rows.load_rows`; anytime traces, learners' curves:
+:mod:`fixbench.bench.records.store`); nothing is recomputed.
 
 Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" below):
 
@@ -17,7 +17,7 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
         OUT/<algorithm>/data_f<id>_<name>/IOHprofiler_f<id>_DIM<agents>.dat
 
     A *problem* (function) is what a cell ran on: case x material x agents x mode x task set
-    (``n_tasks``; held-out cells also ``heldout_every``: :func:`fixbench.bench.running.rows.track_of`);
+    (``n_tasks``; held-out cells also ``heldout_every``: :func:`fixbench.bench.records.rows.track_of`);
     its name reads
     ``<case>-<material>-a<agents>-t<n_tasks>-<mode>`` and its id is a number made from the name
     (:func:`function_id`), so that one problem keeps its id in every export, whichever other
@@ -64,7 +64,7 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
     One JSON file, ``OUT/marl_eval.json``, in marl-eval's raw-data layout: environment (the case)
     -> task (``<material>-a<agents>-t<n_tasks>-<mode>``) -> algorithm (label) -> run
     (``seed_<seed>``) -> ``step_<k>`` entries and ``absolute_metrics``, every metric a list of
-    values. Steps are the learners' training curves (:func:`fixbench.bench.running.store.load_curves`)
+    values. Steps are the learners' training curves (:func:`fixbench.bench.records.store.load_curves`)
     that have one value an episode (curves named ``episode_*``): ``step_<k>`` holds the value of
     episode k and ``step_count``, the samples (environment steps) spent by the end of that episode.
     Curves with other lengths (per step, per task, per agent) are left out. ``absolute_metrics``
@@ -75,7 +75,7 @@ Formats (``export_run(run_dir, fmt, out)``; ``out`` is a folder, see "Writing" b
 
 ``csv``
     ``OUT/rows.csv`` (one row per finished cell as the run stores it,
-    :func:`fixbench.bench.running.rows.load_results`: the columns of ``ROW_SCHEMA``, NaN as an empty
+    :func:`fixbench.bench.records.rows.load_results`: the columns of ``ROW_SCHEMA``, NaN as an empty
     field, a label only where the matrix entry gives one, the JSON columns (config, per-task values,
     layouts, info, provenance) as JSON text),
     ``OUT/traces.csv`` (``cell, task, task_samples, samples, best``) and, when the run has learners,
@@ -106,8 +106,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.running.rows import JSON_COLUMNS, ROW_SCHEMA, load_results, load_rows, track_of
-from fixbench.bench.running.store import TRACE_COLUMNS, json_text, load_curves, load_traces
+from fixbench.bench.records.rows import JSON_COLUMNS, ROW_SCHEMA, load_results, load_rows, track_of
+from fixbench.bench.records.store import TRACE_COLUMNS, json_text, load_curves, load_traces
 from fixbench.cases.errors import CaseError, FixbenchError
 
 FORMATS = ("iohprofiler", "marl-eval", "csv")
@@ -138,7 +138,7 @@ def _some(rows: pd.DataFrame, run_dir: Path) -> pd.DataFrame:
 
 
 def load_run(run_dir: str | Path) -> pd.DataFrame:
-    """The finished rows of ``run_dir`` (:func:`fixbench.bench.running.rows.load_rows`) with ``algorithm``
+    """The finished rows of ``run_dir`` (:func:`fixbench.bench.records.rows.load_rows`) with ``algorithm``
     (how formats name a planner entry) and ``problem`` (the key of what the cell ran on); one-line error if
     it is not a run directory."""
     run_dir = _run_dir(run_dir)
@@ -149,7 +149,7 @@ def load_run(run_dir: str | Path) -> pd.DataFrame:
 
 
 def _problem_key(r) -> tuple:
-    """One exported problem: the row's :func:`~fixbench.bench.running.rows.track_of` (its problem and
+    """One exported problem: the row's :func:`~fixbench.bench.records.rows.track_of` (its problem and
     held-out level, 0: none), since other tools cannot tell the tracks apart by mode alone."""
     case, material, agents, n_tasks, mode, k = track_of(r._asdict())
     return (str(case), str(material), _int(agents), _int(n_tasks), str(mode), k)
@@ -162,7 +162,7 @@ def _problem_name(key: tuple, with_case: bool = True) -> str:
 
 
 def _algorithm_names(rows: pd.DataFrame) -> list[str]:
-    """The report's label (``label``: :func:`fixbench.bench.running.rows.entry_labels`); where one label
+    """The report's label (``label``: :func:`fixbench.bench.records.rows.entry_labels`); where one label
     ran on a problem under several budgets (a sweep), the budget is added: ``random @10/task``,
     ``random @600``."""
     base = list(rows["label"])

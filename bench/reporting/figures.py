@@ -21,9 +21,9 @@ import pandas as pd  # noqa: E402
 import seaborn as sns  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullLocator  # noqa: E402
 
+from fixbench.bench.records.rows import reference_of  # noqa: E402
 from fixbench.bench.reporting.plots import outline  # noqa: E402
 from fixbench.bench.reporting.stats import BOOT_SEED, TARGETS, on_grid, runtime, sample_grid  # noqa: E402
-from fixbench.bench.running.rows import reference_of  # noqa: E402
 from fixbench.cases.rewards import REFERENCE_OPTIMAL_REWARD  # noqa: E402
 from fixbench.solvers.base import Training  # noqa: E402
 
@@ -345,7 +345,7 @@ def draw_figure4(axes, runs: dict[str, list[dict]], colors: dict) -> None:
 
 def _problem_for_row(row):
     """The problem a row was run on (its case, material, agents and tasks), to draw its fields."""
-    from fixbench.bench.running.cells import problem_for
+    from fixbench.cases.problem import problem_for
 
     n_tasks = int(row["n_tasks"])
     p = problem_for(row["case"], row["material"], None, n_tasks)

@@ -17,7 +17,7 @@ from pathlib import Path
 import pandas as pd
 from markdown_it import MarkdownIt
 
-from fixbench.bench.running.store import json_text
+from fixbench.bench.records.store import json_text
 
 STYLE = """body{font-family:system-ui,sans-serif;max-width:72rem;margin:2rem auto;padding:0 1rem;line-height:1.45}
 table{border-collapse:collapse;margin:1rem 0;font-size:.85rem}th,td{border:1px solid #ccc;padding:.2rem .5rem}

@@ -17,8 +17,8 @@ Runs merge when their cells are comparable; the first difference is refused in o
 - a cell held by two runs (an extended copy beside its original) has the same result in both, and is
   read once.
 
-Each run is read by the one loader, :func:`fixbench.bench.running.rows.load_rows` (its labels made per
-run); the settings compared are :data:`fixbench.bench.running.rows.SETTINGS`.
+Each run is read by the one loader, :func:`fixbench.bench.records.rows.load_rows` (its labels made per
+run); the settings compared are :data:`fixbench.bench.records.rows.SETTINGS`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from fixbench.bench.running.rows import (
+from fixbench.bench.records.rows import (
     ORDER,
     REFERENCE,
     SETTINGS,
@@ -46,7 +46,7 @@ from fixbench.cases.errors import CaseError
 RESULTS = Path(__file__).resolve().parents[2] / "results"
 #: how a message names a setting (its column otherwise)
 NAMES = {"n_tasks": "tasks", "heldout_every": "held-out every"}
-#: a cell's settings (:data:`~fixbench.bench.running.rows.SETTINGS`; its budget and samples a task as one
+#: a cell's settings (:data:`~fixbench.bench.records.rows.SETTINGS`; its budget and samples a task as one
 #: ``level``), in the order a difference is looked for: (column, as a message names it)
 COMPARED = tuple(("level", "budget") if c == "budget" else (c, NAMES.get(c, c))
                  for c in SETTINGS if c != "samples_per_task")

@@ -1,8 +1,8 @@
 """``fixbench report``: tables and figures of a run directory (docs/reporting.md).
 
-Everything is read back from the run directory: rows (:func:`fixbench.bench.running.rows.load_rows`, through
+Everything is read back from the run directory: rows (:func:`fixbench.bench.records.rows.load_rows`, through
 :mod:`fixbench.bench.reporting.merge`), anytime traces and learners' training curves
-(:mod:`fixbench.bench.running.store`) and the regret references. The report folder gets
+(:mod:`fixbench.bench.records.store`) and the regret references. The report folder gets
 
     report.md                   the tables (Markdown) and the figures (relative links)
     index.html                  the same as one self-contained page, with the run's provenance
@@ -38,6 +38,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from fixbench.bench.records.rows import ORDER  # noqa: E402
+from fixbench.bench.records.store import load_curves, load_traces  # noqa: E402
 from fixbench.bench.reporting.comparison import (  # noqa: E402
     headline_table,
     heldout_table,
@@ -83,8 +85,6 @@ from fixbench.bench.reporting.tables import (  # noqa: E402
 )
 from fixbench.bench.reporting.verdict import show_verdict, verdict_table  # noqa: E402
 from fixbench.bench.running.provenance import host_key  # noqa: E402
-from fixbench.bench.running.rows import ORDER  # noqa: E402
-from fixbench.bench.running.store import load_curves, load_traces  # noqa: E402
 from fixbench.cases.references import check_sources  # noqa: E402
 from fixbench.solvers.registry import listing  # noqa: E402
 

@@ -18,7 +18,7 @@ import pandas as pd
 from scipy.stats import bootstrap, mannwhitneyu, trim_mean
 from scipy.stats import t as t_dist
 
-from fixbench.bench.running.rows import PROFILE_PROBLEM, VARIED_SETTINGS, problem_of, reference_of
+from fixbench.bench.records.rows import PROFILE_PROBLEM, VARIED_SETTINGS, problem_of, reference_of
 
 #: the bootstrap's seed, resamples and confidence level
 BOOT_SEED = 20250101
@@ -188,8 +188,8 @@ def runtime(rec: dict, target: float) -> float:
 
 
 def performance_profile(ok_and_failed: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, dict]:
-    """Ratios objective / best objective per problem (:data:`~fixbench.bench.running.rows.PROFILE_PROBLEM`
-    and each of :data:`~fixbench.bench.running.rows.VARIED_SETTINGS` the run varies); failed or missing runs
+    """Ratios objective / best objective per problem (:data:`~fixbench.bench.records.rows.PROFILE_PROBLEM`
+    and each of :data:`~fixbench.bench.records.rows.VARIED_SETTINGS` the run varies); failed or missing runs
     have ratio inf. Returns the ratio table (problems x planners), a tau grid and rho(tau) per planner."""
     df = ok_and_failed.copy()
     df["obj"] = np.where(df["ok"], df["objective_m"], np.inf)

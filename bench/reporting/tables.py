@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from fixbench.bench.records.rows import REFERENCE, VARIED_SETTINGS
+from fixbench.bench.references.score import reference_bounds
 from fixbench.bench.reporting.stats import bootstrap_ci, iqm
-from fixbench.bench.running.cells import reference_bounds
-from fixbench.bench.running.rows import REFERENCE, VARIED_SETTINGS
 from fixbench.cases.errors import CaseError
 
 # formatting ------------------------------------------------------------------------------------------
@@ -58,7 +58,7 @@ def show_numbers(table: pd.DataFrame, digits: int = 3) -> pd.DataFrame:
 # the per-run tables ----------------------------------------------------------------------------------
 
 def group_keys(rows: pd.DataFrame) -> list[str]:
-    """``case`` and the :data:`~fixbench.bench.running.rows.VARIED_SETTINGS` the run varies; a sweep's
+    """``case`` and the :data:`~fixbench.bench.records.rows.VARIED_SETTINGS` the run varies; a sweep's
     budget follows from its samples a task."""
     varied = [k for k in VARIED_SETTINGS if rows[k].nunique(dropna=True) > 1]
     if "samples_per_task" in varied:

@@ -18,8 +18,8 @@ from multiprocessing.connection import wait
 
 import psutil
 
+from fixbench.bench.references.prove import compute_reference, prove_position
 from fixbench.bench.running.cells import run_cell
-from fixbench.bench.running.references import compute_reference, prove_position
 from fixbench.cases.errors import CaseError
 
 Job = tuple  # ("reference", args) | ("position", (position,)) | ("cell", (cell, reference))

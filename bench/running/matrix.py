@@ -15,10 +15,8 @@ import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-
-from fixbench.bench.running.keys import split
-from fixbench.bench.running.rows import DEFAULT_MODE, MODES
+from fixbench.bench.records.keys import split
+from fixbench.bench.records.rows import DEFAULT_MODE, MODES
 from fixbench.cases.errors import CaseError
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import resolve_case
@@ -131,13 +129,6 @@ class Matrix:
                 seen.add(c.id)
                 unique.append(c)
         return unique
-
-
-def task_subset(n_tasks: int, wanted: int | None) -> list[int]:
-    """``wanted`` tasks spread evenly over ``n_tasks`` (all when None or too many)."""
-    if wanted is None or wanted >= n_tasks:
-        return list(range(n_tasks))
-    return sorted({int(round(x)) for x in np.linspace(0, n_tasks - 1, wanted)})
 
 
 def _beside(matrix: Path, case: str) -> str:

@@ -3,7 +3,7 @@
 Crash-safe and resumable: every finished cell's row is written atomically as it arrives, and a
 rerun of the same command skips the cells that have a row (``--retry-failed`` reruns the ones
 whose row carries an error). The reference phase before the cells proves each problem's optimum
-position by position where it can (:mod:`fixbench.bench.running.proof`), with its progress on stderr and
+position by position where it can (:mod:`fixbench.bench.references.prove`), with its progress on stderr and
 every proven position kept in the run directory: a rerun proves only the positions missing. A
 planner that raises or runs past ``--cell-timeout`` becomes a row with its error; the matrix goes on.
 """
@@ -20,15 +20,15 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from fixbench.bench.running.cells import base_row, problem_for
+from fixbench.bench.records.rows import ONLY_KEYS, reference_key
+from fixbench.bench.records.store import Store, write_json_atomic
+from fixbench.bench.references.prove import Proof, enumerates
+from fixbench.bench.running.cells import base_row
 from fixbench.bench.running.matrix import find_matrix, load_matrix
-from fixbench.bench.running.proof import Proof
-from fixbench.bench.running.references import enumerates
-from fixbench.bench.running.rows import ONLY_KEYS, reference_key
-from fixbench.bench.running.store import Store, write_json_atomic
 from fixbench.cases import cache as oracle_cache
 from fixbench.cases.errors import CaseError
 from fixbench.cases.files import write_text_atomic
+from fixbench.cases.problem import problem_for
 
 
 def make_executor(kind: str, workers: int | None, timeout: float | None, address: str | None,
@@ -176,7 +176,7 @@ def _run_locked(text: str, store: Store, cells: list, selected, opts: _RunOption
 def _reference_phase(store: Store, todo: list, modes: tuple[str, ...], proof_limit: int | None, ex,
                      opts: _RunOptions) -> dict[str, dict]:
     """The regret reference of every problem of ``todo``: read where ``DIR/reference/KEY.json`` holds
-    it; proven position by position where the positions can be enumerated (:mod:`fixbench.bench.running.proof`:
+    it; proven position by position where the positions can be enumerated (:mod:`fixbench.bench.references.prove`:
     progress on stderr, records in the run directory, a rerun proves only the positions missing); else
     one job a problem (``exact``'s MILP or the shipped reference). Returns {key: reference}."""
     references: dict[str, dict] = {}

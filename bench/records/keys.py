@@ -2,7 +2,7 @@
 --heldout-every``, the matrix's cells, the reports, ``fixbench tune`` and the reference tools.
 
 The keys that group rows (problem, regret reference, ranked problem, entry label) are in
-:mod:`fixbench.bench.running.rows`. The learners' own ``train_tasks`` / ``train_fraction`` choice (their
+:mod:`fixbench.bench.records.rows`. The learners' own ``train_tasks`` / ``train_fraction`` choice (their
 ``train_ids``: positions spread evenly over a per-task run, or those listed) is another rule, not this
 one (10 positions, every 2nd: 0, 2, 4, 6, 8 here, 0, 2, 4, 7, 9 there at ``train_fraction`` 0.5); a
 held-out cell hands this split to the planner (``Planner.solve(train_tasks=...)``), so the solvers never

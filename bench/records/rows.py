@@ -1,7 +1,7 @@
 """Result rows, the one definition: what a row holds, how rows group, and the one loader.
 
 A run directory holds a row file per finished cell, ``DIR/rows/<cell id>.json``
-(:mod:`fixbench.bench.running.store` writes them and keeps the run directory). This module is what
+(:mod:`fixbench.bench.records.store` writes them and keeps the run directory). This module is what
 every reader of rows goes by (the reports, the exports, merged runs, ``fixbench verify`` and the
 reference tools):
 
@@ -20,7 +20,7 @@ value for (NaN) as null. Rows of schema 1 held those columns as JSON text inside
 schemas 1 and 2 wrote a missing number as ``NaN`` (which Python's ``json`` reads, strict parsers do
 not); they are read as they are on disk (their checksum is over that text) and then decoded by
 :func:`decode_row`, so every reader sees one in-memory form whichever schema a file has (a missing
-number is NaN there); :meth:`fixbench.bench.running.store.Store.rewrite` writes such a row again as
+number is NaN there); :meth:`fixbench.bench.records.store.Store.rewrite` writes such a row again as
 schema 3 (``fixbench references rescore DIR`` rewrites every older row of a run).
 
 Integrity: a row carries its schema version, its cell id (equal to its file name), ``row_sha1``, a
@@ -29,7 +29,7 @@ and curves files (written before the row). A row file that does not parse, is no
 to another cell, has a schema version this fixbench does not read, fails its checksum or holds a
 column in the wrong form for its schema, or whose trace or curves file is missing or differs from
 its recorded SHA-1, is *damaged* (:func:`read_rows`): the loaders skip it with one line on stderr,
-``fixbench run`` moves it aside and recomputes its cell (:meth:`fixbench.bench.running.store.Store.finished`).
+``fixbench run`` moves it aside and recomputes its cell (:meth:`fixbench.bench.records.store.Store.finished`).
 Rows written before checksums existed are checked by schema only.
 
 Keys. A cell names its problem as its matrix does, ``(case, material, agents, tasks)`` with None for
@@ -52,7 +52,7 @@ these column tuples group rows:
   ``--only`` selects cells by; :data:`ORDER`: the order rows are read in.
 
 The held-out split (which positions a held-out cell trains on) is
-:func:`fixbench.bench.running.keys.split`.
+:func:`fixbench.bench.records.keys.split`.
 """
 
 from __future__ import annotations

@@ -3,18 +3,18 @@
 Layout of a run directory::
 
     DIR/matrix.toml                 the matrix that was run (copied at the start)
-    DIR/rows/<cell id>.json         one flat row per finished cell (bench/running/rows.py)
+    DIR/rows/<cell id>.json         one flat row per finished cell (bench/records/rows.py)
     DIR/traces/<cell id>.parquet    anytime trace: TRACE_COLUMNS (task, task_samples, samples, best)
     DIR/curves/<cell id>.parquet    training curves of learners: curve, index, value (long form)
     DIR/reference/<key>.json        regret reference per (case, material, agents, tasks)
-    DIR/reference/<key>.proof.jsonl its positions as the reference phase proved them (bench/running/proof.py)
+    DIR/reference/<key>.proof.jsonl its positions as the reference phase proved them (bench/references/prove.py)
 
 A row is written to a temporary file and renamed into place, so a run killed at any moment
 leaves only complete rows; rerunning skips the cells that have one.
 
 Rows: what a row holds (its columns and schema version), what makes a row file damaged and how an
-older schema is read are :mod:`fixbench.bench.running.rows`, which reads them too (its loader,
-:func:`~fixbench.bench.running.rows.load_rows`); this module writes them (as ``SCHEMA_VERSION``, with
+older schema is read are :mod:`fixbench.bench.records.rows`, which reads them too (its loader,
+:func:`~fixbench.bench.records.rows.load_rows`); this module writes them (as ``SCHEMA_VERSION``, with
 their checksums) and :meth:`Store.finished` moves a damaged row aside so that ``fixbench run``
 recomputes its cell.
 ``DIR/.lock`` is held (an OS file lock) by the one ``fixbench run`` writing there.
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from fixbench.bench.running.rows import (
+from fixbench.bench.records.rows import (
     CHECKSUM,
     FILE_CHECKSUMS,
     SCHEMA_VERSION,
@@ -77,8 +77,8 @@ class Store:
         return cell_files(self.root, cell_id)
 
     def finished(self, move_damaged: bool = False, quiet: bool = False) -> dict[str, dict]:
-        """Valid rows already written (decoded: :func:`fixbench.bench.running.rows.decode_row`), by cell
-        id. Each damaged row file (:func:`fixbench.bench.running.rows.read_rows`) is reported in one line
+        """Valid rows already written (decoded: :func:`fixbench.bench.records.rows.decode_row`), by cell
+        id. Each damaged row file (:func:`fixbench.bench.records.rows.read_rows`) is reported in one line
         (unless ``quiet``) and, with ``move_damaged``, moved to ``DIR/damaged/`` with its trace and curves
         files (its cell is then to do again); ``self.damaged`` lists their paths."""
         out, damaged = read_rows(self.root)

@@ -5,7 +5,7 @@ For robot k and each of its actions o, hold the pads of o and clamp every degree
 pad of any *other* robot's candidates touches (the support of their constraint rows). Every layout
 that gives robot k the action o holds a subset of those constraints (each other pad's rows vanish on
 clamped DOFs), so by monotonicity (docs/references.md#lower-bounds) its compliance is at least the
-node's c_R, and the averaged bound of :mod:`fixbench.solvers.bound` applies with rho taken on the
+node's c_R, and the averaged bound of :mod:`fixbench.bench.references.compliance_bound` applies with rho taken on the
 free plate (K_S <= K^-1 for every S, so r . K_S r <= r . K^-1 r):
 
     m(S) >= max over s of (c_R - rho_0(s) sqrt(c_R)) / (s A),   rho_0(s)^2 = (f - s P^T a) . K^-1 (f - s P^T a).
@@ -15,11 +15,11 @@ With two neighbouring robots k and j free (the other zones clamped) a node holds
 k's one-robot node, so its bound is at least that node's: the least over the pair nodes is searched k's
 actions least one-robot bound first, stopping where that bound reaches the least pair bound found
 (:meth:`ZoneBound.pair_bounds`). The task's bound is the largest of all of these. It is what
-:class:`~fixbench.solvers.bound.ComplianceBound` cannot give on the full parts: there the held blocks of
-thousands of overlapping pads are not numerically positive definite, while clamped DOFs are always
-well posed (a direct sparse factorisation of the remaining stiffness). Its cost is one factorisation
-and one back-solve per constraint row of robot k's candidates, per robot and field, then a few small
-dense solves per (action, task) and per expansion of a pair; docs/references.md#zone-bound has the
+:class:`~fixbench.bench.references.compliance_bound.ComplianceBound` cannot give on the full parts:
+there the held blocks of thousands of overlapping pads are not numerically positive definite, while
+clamped DOFs are always well posed (a direct sparse factorisation of the remaining stiffness). Its cost
+is one factorisation and one back-solve per constraint row of robot k's candidates, per robot and field, then a few
+small dense solves per (action, task) and per expansion of a pair; docs/references.md#zone-bound has the
 measured cost and gaps.
 
 Written by hand: no library bounds this combinatorial problem; the linear algebra is SciPy's.
@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from fixbench.bench.references.compliance_bound import force_total, point_compliance, point_forces, solve_columns
 from fixbench.cases.fem import ScaledLU
 from fixbench.cases.problem import Problem
-from fixbench.solvers.bound import force_total, point_compliance, point_forces, solve_columns
 
 
 @dataclass(frozen=True)
