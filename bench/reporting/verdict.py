@@ -21,9 +21,13 @@ from fixbench.bench.reporting.tables import ci_text
 P_LINE = "P(learner < classical)"
 
 
+#: P of two entries that neither beats: yes above it, no below, level where P's interval holds it
+EVEN = 0.5
+
+
 def answer(lo: float, hi: float) -> str:
     """yes / level / no from P's interval [lo, hi] (see the module docstring)."""
-    return "yes" if lo > 0.5 else "no" if hi < 0.5 else "level"
+    return "yes" if lo > EVEN else "no" if hi < EVEN else "level"
 
 
 def verdict_table(head: pd.DataFrame) -> pd.DataFrame:
