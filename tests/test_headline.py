@@ -99,7 +99,7 @@ def test_the_verdict_is_the_interval_of_p():
         ("local-search", "fan", "local", 0.0, 0.0, 0.0),
         ("P(learner < classical)", "fan", "qmix vs local", 0.1, 0.0, 0.3),
     ], columns=["family", "column", "entry", "iqm", "iqm_lo", "iqm_hi"])
-    v = verdict_table(head)
+    v = verdict_table(head, [("panel (per-task)", "panel", "per-task"), ("fan", "fan", None)])
     assert v[["part", "track", "answer", "learner", "classical"]].values.tolist() == [
         ["panel", "per-task", "yes", "vdn", "pso"], ["fan", "-", "no", "qmix", "local"]]
     assert v["classical_iqm"].tolist() == [9.0, 0.0] and v["p_hi"].tolist() == [1.0, 0.3]

@@ -253,7 +253,7 @@ def _comparison_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> pd.DataF
                     "stratified-bootstrap CI); last line: rliable's probability that a cell of the best learning "
                     "entry (MARL or bandit learners) ends with a lower relative regret than a cell of the best "
                     "other entry, with its 95 % CI (the two entries named).")
-            verdict = verdict_table(head)
+            verdict = verdict_table(head, main_columns(rows))
             if len(verdict):
                 w.table("verdict", verdict, show_verdict(verdict),
                         "The answer, a line a case and track: do learning robots beat classical planners at equal "

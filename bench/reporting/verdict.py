@@ -11,8 +11,6 @@ with it (``fixbench report --readme`` copies the table into the README).
 
 from __future__ import annotations
 
-import re
-
 import pandas as pd
 
 from fixbench.bench.reporting.tables import ci_text
@@ -30,14 +28,15 @@ def answer(lo: float, hi: float) -> str:
     return "yes" if lo > EVEN else "no" if hi < EVEN else "level"
 
 
-def verdict_table(head: pd.DataFrame) -> pd.DataFrame:
+def verdict_table(head: pd.DataFrame, columns: list[tuple[str, str, str | None]]) -> pd.DataFrame:
     """One line a headline column (a part and track): the answer, the two entries with their IQM and
-    interval, and P with its interval."""
+    interval, and P with its interval. ``columns``: the main table's (name, case, mode) of each column
+    (:func:`~fixbench.bench.reporting.comparison.main_columns`; mode None in a run of one mode: "-")."""
+    where = {name: (case, mode or "-") for name, case, mode in columns}
     recs = []
     for _, p in head[head["family"] == P_LINE].iterrows():
         learner, classical = p["entry"].split(" vs ", 1)
-        named = re.fullmatch(r"(.+) \((.+)\)", p["column"])  # "CASE (TRACK)"; a run of one mode: "CASE"
-        part, track = named.groups() if named else (p["column"], "-")
+        part, track = where[p["column"]]
         rec = {"part": part, "track": track, "answer": answer(p["iqm_lo"], p["iqm_hi"])}
         for role, label in (("learner", learner), ("classical", classical)):
             row = head[(head["column"] == p["column"]) & (head["entry"] == label) & (head["family"] != P_LINE)].iloc[0]
