@@ -46,7 +46,7 @@ bench: $(TESTED)
 
 test: $(TESTED) browser
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -n 2 --benchmark-disable --durations=20
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup --benchmark-disable --durations=20
 
 lint: setup
 	$(BIN)/ruff check .

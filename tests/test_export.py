@@ -28,6 +28,9 @@ from fixbench.bench.reporting.export import (
 )
 from fixbench.bench.running.runner import run_matrix
 
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so the run is made once a session
+pytestmark = pytest.mark.xdist_group("test_export")
+
 # every mode, a classical planner (small batches: several trace rows a task) and a learner with a
 # few episodes; iql has no shared mode, so two of its cells fail (rows with an error)
 TINY = """

@@ -22,6 +22,9 @@ from fixbench.bench.records.store import Store
 from fixbench.bench.reporting.report import make_report
 from fixbench.bench.running.provenance import provenance
 
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so the report is made once a session
+pytestmark = pytest.mark.xdist_group("test_html")
+
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 

@@ -19,6 +19,9 @@ import pytest
 from fixbench.bench.cli import main
 from fixbench.bench.reporting.merge import load_runs
 
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so the README's join example runs once a session
+pytestmark = pytest.mark.xdist_group("test_join")
+
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "results" / "tiny"
 README = ROOT / "README.md"

@@ -55,17 +55,17 @@ def test_show_warns_of_degenerate_reward_widths(plate_toml, tmp_path):
     bad = runner.invoke(cli, ["show", plate_toml(*EDITS), "--out", str(tmp_path / "a.png")])
     assert bad.exit_code == 0, bad.output
     assert "warning:" in bad.output and "degenerate" in bad.output and "100% of random layouts" in bad.output
-    good = runner.invoke(cli, ["show", "bus_panel_small", "--out", str(tmp_path / "b.png")])
+    good = runner.invoke(cli, ["show", "wing_spar_small", "--out", str(tmp_path / "b.png")])  # 25 % at 0 or 1
     assert good.exit_code == 0 and "warning:" not in good.output, good.output
 
 
 def test_cases_warns_of_degenerate_reward_widths(plate_toml):
     """`fixbench cases CASE... --reward`: the share of random layouts at a reward of 0 or 1 as a column,
     and the same warning as `show` for a case whose widths are degenerate, not for one whose are not."""
-    result = CliRunner().invoke(cli, ["cases", plate_toml(*EDITS), "bus_panel_small", "--reward", "--json"])
+    result = CliRunner().invoke(cli, ["cases", plate_toml(*EDITS), "wing_spar_small", "--reward", "--json"])
     assert result.exit_code == 0, result.output
     rows = {r["case"]: r for r in json.loads(result.stdout)}
-    assert rows["plate"]["reward_0_or_1"] == 1.0 and rows["bus_panel_small"]["reward_0_or_1"] < 0.5, rows
+    assert rows["plate"]["reward_0_or_1"] == 1.0 and rows["wing_spar_small"]["reward_0_or_1"] < 0.5, rows
     warnings = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1 and "plate.toml" in warnings[0] and "degenerate" in warnings[0], result.stderr
 

@@ -13,6 +13,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so the walk-through runs once a session
+pytestmark = pytest.mark.xdist_group("test_new_part")
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "new-part.md"
 

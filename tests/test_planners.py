@@ -20,7 +20,15 @@ from fixbench.cases.problem import Problem
 from fixbench.solvers import PlannerError, available, get, register
 from fixbench.solvers.search.random_search import RandomSearch
 
-BUDGET = 4_000  # covers exact enumeration of the problem below (42 x 42 layouts x 2 tasks)
+#: exact's budget covers the enumeration of the problem below (42 x 42 layouts x 2 tasks); the others get
+#: less than the joint space, as on every real part (a search that has seen most of a tiny space spends
+#: the rest of a larger budget hunting the few layouts it has not)
+BUDGETS = {"exact": 4_000}
+BUDGET = 1_000
+
+
+def budget(name: str) -> int:
+    return BUDGETS.get(name, BUDGET)
 
 
 @pytest.fixture(scope="module")
@@ -38,14 +46,14 @@ def _quick(name):
 
 @pytest.mark.parametrize("name", sorted(available()))
 def test_planner_contract(problem, name):
-    first = _quick(name).solve(problem, BUDGET, seed=11)
+    first = _quick(name).solve(problem, budget(name), seed=11)
     assert first.layouts.shape == (problem.n_tasks, problem.n_agents)
     for a, allowed in enumerate(problem.action_sets):
         assert np.isin(first.layouts[:, a], allowed).all()
-    assert 0 <= first.samples <= BUDGET
+    assert 0 <= first.samples <= budget(name)
     assert first.trace.shape[1] == 4 and (first.trace[:, 2] <= first.samples).all()
     assert np.all(first.max_deformation > 0)
-    again = _quick(name).solve(problem, BUDGET, seed=11)
+    again = _quick(name).solve(problem, budget(name), seed=11)
     np.testing.assert_array_equal(first.layouts, again.layouts)
     assert first.samples == again.samples
 
@@ -90,9 +98,9 @@ def test_tiny_budgets_are_spent_and_the_best_layout_seen_is_returned(name, per_t
 
 @pytest.mark.parametrize("name", sorted(n for n, c in available().items() if "shared" in c.modes))
 def test_shared_mode(problem, name):
-    result = _quick(name).solve(problem, BUDGET, seed=2, mode="shared")
+    result = _quick(name).solve(problem, budget(name), seed=2, mode="shared")
     assert (result.layouts == result.layouts[0]).all()
-    assert result.samples <= BUDGET
+    assert result.samples <= budget(name)
 
 
 def test_registry_refuses_a_taken_name():

@@ -15,6 +15,9 @@ from fixbench.bench.reporting.stats import prediction_interval
 from fixbench.bench.running.provenance import provenance
 from fixbench.bench.verify import code_path_note, sample
 
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so the tiny run is made once a session
+pytestmark = pytest.mark.xdist_group("test_verify")
+
 MATRIX = """name = "tiny"
 cases = ["fan_small"]
 materials = ["aluminium"]
