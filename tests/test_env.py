@@ -18,20 +18,17 @@ UNEQUAL = ["wing_panel_pairs_small", "wing_panel_small"]  # robots with action s
 
 @pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan", "wing_panel_pairs_small",
                                   "wing_panel_pads_small"])
-def test_parallel_api(part):
-    env = make_env(part, tasks=TASKS)  # the real part, three of its tasks (cheap oracle)
+def test_pettingzoo_api_seed_and_performance_tests(part):
+    """PettingZoo's own tests on every part (the real part, three of its tasks: a cheap oracle): the
+    parallel API test, the seed test (same seed, same observations, rewards and infos) and the
+    performance benchmark (on the AEC view of the env). One test a part, so that the part's FE model is
+    built once (the process keeps it: fixbench.cases.problem's cache)."""
+    from pettingzoo.test import performance_benchmark
+
+    env = make_env(part, tasks=TASKS)
     assert env.problem.name == part and env.problem.n_tasks == 3
     parallel_api_test(env, num_cycles=20)
     assert env.samples > 0
-
-
-@pytest.mark.parametrize("part", ["wing_panel", "wing_spar", "bus_panel", "fan", "wing_panel_pairs_small",
-                                  "wing_panel_pads_small"])
-def test_parallel_seed_and_performance(part):
-    """PettingZoo's own seed test (same seed, same observations, rewards and infos) and its
-    performance benchmark (on the AEC view of the env) on every part."""
-    from pettingzoo.test import performance_benchmark
-
     parallel_seed_test(lambda: make_env(part, tasks=TASKS), num_cycles=20)
     performance_benchmark(parallel_to_aec(make_env(part, tasks=TASKS)))
 

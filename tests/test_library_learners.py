@@ -17,7 +17,10 @@ from fixbench.solvers import PlannerError, get
 
 needs_torchrl = pytest.mark.skipif(find_spec("torchrl") is None,
                                    reason="torchrl is not installed (pip install 'fixbench[marl]')")
-pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore::DeprecationWarning")
+#: one xdist worker runs these tests (`make test`: --dist loadgroup), so each learner's runs (run(), cached) are
+#: made once a session
+pytestmark = [pytest.mark.filterwarnings("ignore::UserWarning", "ignore::DeprecationWarning"),
+              pytest.mark.xdist_group("test_library_learners")]
 
 LEARNERS = ["mappo", "ippo", "qmix"]
 CASE, PER_TASK, SEEDS = "wing_panel_small", 100, (0, 1, 2)
