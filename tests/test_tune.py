@@ -21,16 +21,16 @@ def test_every_declared_search_space_is_well_formed(name):
 
 
 def test_tuning_starts_from_the_defaults_and_never_ends_worse(tmp_path):
-    result = tune("rules", 4, cases=("wing_panel_small",), seeds=(0,), echo=lambda m: None)
+    result = tune("rules", 4, cases=("fan_small",), seeds=(0,), echo=lambda m: None)
     assert len(result["trials"]) == 4 and result["trials"][0]["config"] == {"load_weight": 0.25}
     assert result["tuned"] <= result["default"] == result["trials"][0]["objective"]
     assert set(result["config"]) <= {"load_weight"}
     entry = matrix_entry(result)
     assert tomllib.loads(entry)["planners"][0]["tuning"] == {
-        "track": "per-task", "trials": 4, "cases": ["wing_panel_small"], "seeds": [0], "samples_per_task": 100,
+        "track": "per-task", "trials": 4, "cases": ["fan_small"], "seeds": [0], "samples_per_task": 100,
         "objective_default": result["default"], "objective_tuned": result["tuned"]}  # full precision
     m = tmp_path / "m.toml"
-    m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nbudget = 10\n' + entry)
+    m.write_text('name = "t"\ncases = ["fan_small"]\nseeds = [0]\nbudget = 10\n' + entry)
     cells = load_matrix(m).cells()
     assert [c.label for c in cells] == ["rules (tuned)"] and dict(cells[0].config) == result["config"]
     back = read_entry(m)
@@ -48,21 +48,22 @@ def test_the_held_out_track_is_tuned_on_the_positions_never_sampled(tmp_path):
     from fixbench.bench.tune import _tuning_problem
     from fixbench.solvers import get
 
-    result = tune("rules", 2, cases=("wing_panel_small",), seeds=(0,), echo=lambda m: None, track="held-out",
+    result = tune("rules", 2, cases=("fan_small",), seeds=(0,), echo=lambda m: None, track="held-out",
                   heldout_every=2)
-    p, optima = _tuning_problem("wing_panel_small")
-    res = get("rules")().solve(p, 100 * 2, seed=0, train_tasks=[0, 2])
+    p, optima = _tuning_problem("fan_small")
+    train = list(range(0, p.n_tasks, 2))
+    res = get("rules")().solve(p, 100 * len(train), seed=0, train_tasks=train)
     held = [t for t in range(p.n_tasks) if t % 2]
     assert list(res.held_out) == held
     assert result["default"] == math.log1p(max(res.objective / np.mean(optima[held]) - 1, 0.0))
     entry = matrix_entry(result)
     written = tomllib.loads(entry)["planners"][0]
     assert written["label"] == "rules (tuned held-out)" and written["mode"] == ["held-out"]
-    assert written["tuning"] == {"track": "held-out", "heldout_every": 2, "trials": 2, "cases": ["wing_panel_small"],
+    assert written["tuning"] == {"track": "held-out", "heldout_every": 2, "trials": 2, "cases": ["fan_small"],
                                  "seeds": [0], "samples_per_task": 100, "objective_default": result["default"],
                                  "objective_tuned": result["tuned"]}
     m = tmp_path / "m.toml"
-    m.write_text('name = "t"\ncases = ["wing_panel_small"]\nseeds = [0]\nsamples_per_task = [10]\n'
+    m.write_text('name = "t"\ncases = ["fan_small"]\nseeds = [0]\nsamples_per_task = [10]\n'
                  'mode = ["per-task", "held-out"]\nheldout_every = 2\n[[planners]]\nname = "random"\n' + entry)
     cells = load_matrix(m).cells()
     assert sorted((c.label, c.mode) for c in cells) == [("", "held-out"), ("", "per-task"),
@@ -205,6 +206,6 @@ def test_the_tuning_table_is_provenance_not_a_setting(tmp_path):
 
 def test_defaults_that_cannot_run_on_a_tuning_case_are_refused_naming_it(capsys):
     """qp's compliance read alone costs more than one sample a position: nothing to tune against."""
-    assert main(["tune", "qp", "--trials", "2", "--cases", "wing_panel_small", "--samples-per-task", "1"]) == 2
+    assert main(["tune", "qp", "--trials", "2", "--cases", "fan_small", "--samples-per-task", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.startswith("fixbench: wing_panel_small: qp's defaults cannot run") and "budget too small" in err
+    assert err.startswith("fixbench: fan_small: qp's defaults cannot run") and "budget too small" in err
