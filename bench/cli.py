@@ -243,7 +243,9 @@ def validate(as_json: bool, with_parts: bool, only: tuple[str, ...]) -> None:
 
 
 @cli.command()
-@click.option("--case", default="wing_panel", show_default=True, help="Case to measure.")
+@click.option("--case", "cases", multiple=True, default=("wing_panel",), show_default=True,
+              help="Case to measure (CASE@MATERIAL: in that material); repeat it to measure several side "
+              "by side (ratios to the first).")
 @click.option("--batch", default=200_000, show_default=True, help="Layouts in the batched call.")
 @click.option("--planner", "planner_name", help="Time this planner instead of the oracle: one run per "
               "value of --vary, side by side.")
@@ -255,7 +257,7 @@ def validate(as_json: bool, with_parts: bool, only: tuple[str, ...]) -> None:
 @click.option("--heldout-every", type=click.IntRange(min=2), help="With --planner: the held-out track.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object (with --planner: a list).")
-def perf(case: str, batch: int, planner_name: str | None, vary: str | None, sets: tuple[str, ...],
+def perf(cases: tuple[str, ...], batch: int, planner_name: str | None, vary: str | None, sets: tuple[str, ...],
          samples_per_task: int, heldout_every: int | None, seed: int, as_json: bool) -> None:
     """Oracle against re-assembly + direct sparse solve, run side by side; or, with --planner and --vary,
     one planner at several values of a setting (CPU seconds, phases, score), side by side."""
@@ -264,7 +266,9 @@ def perf(case: str, batch: int, planner_name: str | None, vary: str | None, sets
     if planner_name or vary:
         if not (planner_name and vary):
             raise click.UsageError("--planner and --vary go together")
-        rows = run_planner_perf(case, planner_name, sets, vary, samples_per_task=samples_per_task, seed=seed,
+        if len(cases) > 1:
+            raise click.UsageError("--planner takes one --case")
+        rows = run_planner_perf(cases[0], planner_name, sets, vary, samples_per_task=samples_per_task, seed=seed,
                                 heldout_every=heldout_every)
         if as_json:
             echo_json(rows)
@@ -273,12 +277,22 @@ def perf(case: str, batch: int, planner_name: str | None, vary: str | None, sets
 
             click.echo(pd.DataFrame(rows).drop(columns=["case", "planner"]).to_markdown(index=False, floatfmt=".4g"))
         return
-    res = run_perf(case, batch=batch, progress=not as_json)
+    results = [run_perf(case, batch=batch, progress=not as_json) for case in cases]
+    if len(results) > 1:
+        base = results[0]
+        for res in results:
+            res["batched_vs_first"] = res["batched_layouts_per_s"] / base["batched_layouts_per_s"]
+            res["single_vs_first"] = base["single_oracle_s"] / res["single_oracle_s"]
     if as_json:
-        echo_json(res)
-    else:
-        for k, v in res.items():
+        echo_json(results[0] if len(results) == 1 else results)
+    elif len(results) == 1:
+        for k, v in results[0].items():
             click.echo(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
+    else:
+        import pandas as pd
+
+        table = pd.DataFrame(results).set_index("case").T
+        click.echo(table.to_markdown(floatfmt=".4g"))
 
 
 @cli.command()

@@ -8,6 +8,9 @@ All timings come from one process on the same machine, so the ratios are what co
 - ``precompute_s``: model build + factorisations + compliance columns of every candidate, computed
   afresh (the disk cache of :mod:`fixbench.cases.cache` is neither read nor written here);
 - ``peak_rss_mb``: the process's peak resident memory after all of the above.
+
+``case`` may be ``CASE@MATERIAL``: the case in a grade, on the same mesh (a laminate part against the
+same part in aluminium: the oracle's cost does not depend on the stiffness it carries).
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ def run_perf(case: str = "wing_panel", batch: int = 200_000, single: int = 2000,
              direct: int = 5, seed: int = 0, progress: bool = True) -> dict:
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
-    problem = load_problem(case)
+    name, _, material = case.partition("@")  # CASE@MATERIAL: the case in another material
+    problem = load_problem(name, material or None)
     model = problem.model
     oracle = Oracle(model, problem.candidates)  # no cache key: the set-up is what is measured
     cols = sum(fo.n_rows for fo in oracle.fields.values())
