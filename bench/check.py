@@ -106,7 +106,7 @@ def check_case(case: str | Path, material: str | None = None, out: Path | None =
     s = settings or CheckSettings()
     problem = load_problem(case, material)  # the file is checked before any work
     res = {"case": problem.name, "source": problem.spec.source, "material": problem.spec.material.name,
-           "thickness_m": problem.spec.thickness, "agents": problem.n_agents, "tasks": problem.n_tasks,
+           "thickness_m": problem.spec.thinnest, "agents": problem.n_agents, "tasks": problem.n_tasks,
            "candidates": len(problem.candidates)}
     res["reference"] = reference_cost(problem, s)  # first: it times the oracle's set-up
     res["mesh"] = mesh_study(case, material, problem, s)
@@ -156,7 +156,7 @@ def random_maxima(problem: Problem, s: CheckSettings) -> tuple[np.ndarray, np.nd
 
 def deflection(problem: Problem, maxima: np.ndarray, tasks: np.ndarray, s: CheckSettings) -> dict:
     """w/t of the random layouts at the task whose median w/t is largest."""
-    ratio = maxima[:, :, 2] / problem.spec.thickness
+    ratio = maxima[:, :, 2] / problem.spec.thinnest
     median = np.median(ratio, axis=1)
     k = int(np.argmax(median))
     return {"layouts": s.layouts, "seed": s.seed, "tasks_checked": len(tasks), "task": int(tasks[k]),

@@ -13,7 +13,8 @@ import importlib
 _WHERE = {
     "FixtureEnv": "env", "make_env": "env",
     "BudgetExhausted": "errors", "CaseError": "errors", "FixbenchError": "errors", "NumericalError": "errors",
-    "MATERIALS": "materials", "Material": "materials",
+    "MATERIALS": "materials", "Material": "materials", "PLIES": "materials", "Ply": "materials",
+    "Laminate": "materials",
     "Deformation": "problem", "Evaluator": "problem", "Problem": "problem", "load_problem": "problem",
     "CaseSpec": "spec", "case_names": "spec", "load_case_spec": "spec",
 }

@@ -31,6 +31,8 @@ from skfem.helpers import dd, ddot, sym_grad, trace
 
 from fixbench.cases.errors import CaseError, NumericalError
 from fixbench.cases.geometry import inward, make_mesh, measurement_points
+from fixbench.cases.materials import Material
+from fixbench.cases.sections import section_index
 from fixbench.cases.spec import FIELD_OF, STANDARD_GRAVITY, CaseSpec, Load, Task
 
 FIELDS = ("bending", "membrane")
@@ -51,6 +53,31 @@ def membrane_form(u, v, w):
     """Plane stress times thickness: t [2 mu e(u):e(v) + lambda* tr e(u) tr e(v)]."""
     eu, ev = sym_grad(u), sym_grad(v)
     return w["t"] * (2.0 * w["mu"] * ddot(eu, ev) + w["lam"] * trace(eu) * trace(ev))
+
+
+def _voigt_product(a, b, w):
+    """a^T C b for symmetric tensors a, b in Voigt order (xx, yy, 2 xy) and the symmetric 3 x 3 C
+    given as its six entries w["c00"], w["c01"], ... (each per element and quadrature point)."""
+    va, vb = (a[0, 0], a[1, 1], 2.0 * a[0, 1]), (b[0, 0], b[1, 1], 2.0 * b[0, 1])
+    total = 0.0
+    for i in range(3):
+        total = total + w[f"c{i}{i}"] * va[i] * vb[i]
+        for j in range(i + 1, 3):
+            total = total + w[f"c{i}{j}"] * (va[i] * vb[j] + va[j] * vb[i])
+    return total
+
+
+@BilinearForm
+def laminate_bending_form(u, v, w):
+    """The general plate: k(u)^T D k(v), k = (w_xx, w_yy, 2 w_xy), D with its D16 and D26 (a
+    laminate's, or thickness regions'); for an isotropic D it is :func:`bending_form`."""
+    return _voigt_product(dd(u), dd(v), w)
+
+
+@BilinearForm
+def laminate_membrane_form(u, v, w):
+    """The general membrane: e(u)^T A e(v), e = (e_xx, e_yy, 2 e_xy), A the membrane stiffness (N/m)."""
+    return _voigt_product(sym_grad(u), sym_grad(v), w)
 
 
 @LinearForm
@@ -278,31 +305,65 @@ def dof_count(spec: CaseSpec, mesh=None) -> int:
     return sum(int(Dofs(mesh, element(f)).N) for f in active_fields(spec))
 
 
-class PlateModel:
-    """The FE model of one case with one material: mesh, both fields, supports, loads, probes.
+def section_stiffness(spec: CaseSpec) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(A, D, mass per area) of the plate, then of each thickness region."""
+    return [spec.material.stiffness(spec.thickness), *(r.stiffness() for r in spec.regions)]
 
-    Construction meshes the part and assembles the active fields; factorisations are lazy.
+
+def element_sections(spec: CaseSpec, mesh) -> np.ndarray:
+    """Each element's section: 0 the plate, i + 1 region i (by its centroid; the mesh follows the
+    regions' outlines, so no element straddles one)."""
+    c = mesh.p[:, mesh.t].mean(axis=1)
+    return section_index(spec.regions, c[0], c[1])
+
+
+class PlateModel:
+    """The FE model of one case: mesh, both fields, supports, loads, probes.
+
+    Construction meshes the part and assembles the active fields; factorisations are lazy. The plate's
+    stiffness is taken element by element: each element lies in the plate or in one of the case's
+    thickness regions (the mesh follows their outlines), whose material or layup gives its A and D.
     """
 
     def __init__(self, spec: CaseSpec, mesh=None):
         self.spec = spec
         self.mesh = mesh if mesh is not None else make_mesh(spec)
+        self.section = element_sections(spec, self.mesh)
         self.active = active_fields(spec)
         self.fields = {f: self._field(f) for f in self.active}
         self.measure_points = measurement_points(spec)
         self._measure = {f: self.component_probes(f, self.measure_points) for f in self.active}
 
     # -- construction --------------------------------------------------------------------------
+    @property
+    def uniform_isotropic(self) -> bool:
+        """One isotropic plate of one thickness: the scalar forms, no per-element data."""
+        return isinstance(self.spec.material, Material) and not self.spec.regions
+
+    def per_element(self, values, basis: Basis) -> np.ndarray:
+        """A value per section (plate, then each region) spread to (elements, quadrature points)."""
+        v = np.asarray(values, dtype=float)[self.section]
+        return np.ascontiguousarray(np.broadcast_to(v[:, None], (len(v), basis.X.shape[-1])))
+
+    def mass_per_area(self, basis: Basis) -> np.ndarray:
+        """rho t (kg/m^2) per element and quadrature point."""
+        return self.per_element([stiffness[2] for stiffness in section_stiffness(self.spec)], basis)
+
     def stiffness(self, field: str, basis: Basis | None = None) -> sp.csr_matrix:
         """Assemble the stiffness of ``field`` (a fresh assembly every call)."""
-        m, t = self.spec.material, self.spec.thickness
-        if field == "bending":
-            basis = basis or Basis(self.mesh, element("bending"))
-            D = m.E * t**3 / (12.0 * (1.0 - m.nu**2))
-            return bending_form.assemble(basis, D=D, nu=m.nu).tocsr()
-        basis = basis or Basis(self.mesh, element("membrane"))
-        lam, mu = m.E * m.nu / (1.0 - m.nu**2), m.E / (2.0 * (1.0 + m.nu))
-        return membrane_form.assemble(basis, t=t, lam=lam, mu=mu).tocsr()
+        basis = basis or Basis(self.mesh, element(field))
+        if self.uniform_isotropic:
+            m, t = self.spec.material, self.spec.thickness
+            if field == "bending":
+                D = m.E * t**3 / (12.0 * (1.0 - m.nu**2))
+                return bending_form.assemble(basis, D=D, nu=m.nu).tocsr()
+            lam, mu = m.E * m.nu / (1.0 - m.nu**2), m.E / (2.0 * (1.0 + m.nu))
+            return membrane_form.assemble(basis, t=t, lam=lam, mu=mu).tocsr()
+        mats = [s[1] if field == "bending" else s[0] for s in section_stiffness(self.spec)]
+        coeffs = {f"c{i}{j}": self.per_element([C[i, j] for C in mats], basis)
+                  for i in range(3) for j in range(i, 3)}
+        form = laminate_bending_form if field == "bending" else laminate_membrane_form
+        return form.assemble(basis, **coeffs).tocsr()
 
     def _field(self, field: str) -> FieldSystem:
         basis = Basis(self.mesh, element(field))
@@ -442,7 +503,10 @@ class PlateModel:
         """Load vector of a pressure, weight or centrifugal load (zero where the field does not feel it)."""
         fs = self.fields[field]
         if ld.kind == "weight" and field == "bending":  # rho g t along -z: a pressure of the material
-            q = -self.spec.material.density * STANDARD_GRAVITY * self.spec.thickness
+            if self.uniform_isotropic:
+                q = -self.spec.material.density * STANDARD_GRAVITY * self.spec.thickness
+            else:
+                q = -self.mass_per_area(fs.basis) * STANDARD_GRAVITY
             return pressure_form.assemble(fs.basis, q=q, inside=1.0)
         if ld.kind == "pressure" and field == "bending":
             inside = 1.0
@@ -451,7 +515,10 @@ class PlateModel:
                 inside = shapely.contains_xy(shapely.Polygon(ld.region), x[0], x[1]).astype(float)
             return pressure_form.assemble(fs.basis, q=ld.magnitude, inside=inside)
         if ld.kind == "centrifugal" and field == "membrane":
-            rtw2 = self.spec.material.density * self.spec.thickness * ld.magnitude**2
+            if self.uniform_isotropic:
+                rtw2 = self.spec.material.density * self.spec.thickness * ld.magnitude**2
+            else:
+                rtw2 = self.mass_per_area(fs.basis) * ld.magnitude**2
             return centrifugal_form.assemble(fs.basis, rtw2=rtw2, cx=ld.at[0], cy=ld.at[1])
         return np.zeros(fs.basis.N)
 

@@ -197,23 +197,51 @@ def _rings(polygon: shapely.Polygon):
         yield hole, np.asarray(inner.representative_point().coords[0])
 
 
+def _lines(spec):
+    """The closed rings the mesh must follow: the part's boundary and, where the case has thickness
+    regions, the boundary and the regions' outlines noded together (a step in thickness then lies on
+    element edges). Each ring is (coordinates without the closing point, closed?)."""
+    if not spec.regions:
+        for ring, _ in _rings(spec.polygon):
+            yield np.asarray(ring.coords)[:-1], True
+        return
+    lines = [spec.polygon.boundary] + [r.polygon.boundary for r in spec.regions]
+    noded = shapely.line_merge(shapely.union_all(lines))
+    for line in getattr(noded, "geoms", [noded]):
+        coords = np.asarray(line.coords)
+        closed = bool(np.allclose(coords[0], coords[-1]))
+        yield (coords[:-1] if closed else coords), closed
+
+
 def _pslg(spec):
-    """Vertices and segments of the boundary, split so that no segment exceeds the local size."""
+    """Vertices and segments of the boundary (and region outlines), split so that no segment exceeds
+    the local size."""
     verts, segs, holes = [], [], []
-    for ring, hole_point in _rings(spec.polygon):
-        coords = np.asarray(ring.coords)[:-1]
+    for _, hole_point in _rings(spec.polygon):
+        if hole_point is not None:
+            holes.append(hole_point)
+    index: dict[tuple[float, float], int] = {}
+
+    def vertex(p) -> int:  # shared by every line that reaches the same point
+        key = (round(float(p[0]), 12), round(float(p[1]), 12))
+        if key not in index:
+            index[key] = len(verts)
+            verts.append(np.asarray(p, dtype=float))
+        return index[key]
+
+    for coords, closed in _lines(spec):
+        ends = zip(coords, np.roll(coords, -1, axis=0)) if closed else zip(coords[:-1], coords[1:])
         ring_pts = []
-        for a, b in zip(coords, np.roll(coords, -1, axis=0)):
+        for a, b in ends:
             length = np.linalg.norm(b - a)
             h = size_field(spec, np.array([a, b, (a + b) / 2])).min()
             n = max(1, int(np.ceil(length / h)))
             ring_pts.extend(a + (b - a) * t for t in np.arange(n) / n)
-        start = len(verts)
-        verts.extend(ring_pts)
-        m = len(ring_pts)
-        segs.extend([start + i, start + (i + 1) % m] for i in range(m))
-        if hole_point is not None:
-            holes.append(hole_point)
+        if not closed:
+            ring_pts.append(coords[-1])
+        ids = [vertex(p) for p in ring_pts]
+        pairs = zip(ids, ids[1:] + ids[:1]) if closed else zip(ids[:-1], ids[1:])
+        segs.extend([i, j] for i, j in pairs if i != j)
     pslg = {"vertices": np.array(verts), "segments": np.array(segs, dtype=np.int32)}
     if holes:
         pslg["holes"] = np.array(holes)

@@ -45,7 +45,7 @@ def optimum_layouts(problem: Problem, chunk: int = 2**18) -> np.ndarray:
 def _row(problem: Problem, layouts: np.ndarray, source: str) -> dict:
     from fixbench.cases.fem import active_fields
 
-    t = problem.spec.thickness
+    t = problem.spec.thinnest
     if "bending" not in active_fields(problem.spec):  # nothing loads w: it is zero (no model built)
         max_w = np.zeros(len(layouts))
     else:
@@ -64,7 +64,7 @@ def part_rows(small_agents: int | None = None, names=None) -> list[dict]:
     rows = []
     for name in names if names is not None else case_names():
         spec = load_case_spec(name)
-        if spec.validation is not None:
+        if spec.validations:
             continue
         if name.endswith("_small"):  # a case with a pad limit keeps its robots (the limit makes it)
             problem = load_problem(name, agents=None if spec.effector.pads else small_agents)
@@ -74,7 +74,7 @@ def part_rows(small_agents: int | None = None, names=None) -> list[dict]:
         if ref is None:
             rows.append({"check": "w/t", "name": name, "layouts": "no current shipped reference "
                          f"(fixbench references build {name})", "agents": spec.n_agents,
-                         "tasks": len(spec.tasks), "thickness_m": spec.thickness, "max_w_m": None,
+                         "tasks": len(spec.tasks), "thickness_m": spec.thinnest, "max_w_m": None,
                          "task": None, "w_over_t": None, "limit": LIMIT, "flagged": False})
             continue
         layouts = np.array([t["layout"] for t in ref["tasks"]], dtype=np.int64)

@@ -38,7 +38,7 @@ def fixture_cases(only=()) -> list[str] | None:
     not a catalog case with fixtures is a CaseError naming it."""
     if not only:
         return None
-    known = [n for n in case_names() if load_case_spec(n).validation is None]
+    known = [n for n in case_names() if not load_case_spec(n).validations]
     for name in only:
         if name not in known:
             raise CaseError("--part", name, f"is not a catalog case with fixtures (one of {', '.join(known)})")
@@ -47,7 +47,7 @@ def fixture_cases(only=()) -> list[str] | None:
 
 def full_parts() -> list[str]:
     """The catalog's fixture cases that are not ``*_small`` variants (no ``[validation]`` table)."""
-    return [n for n in case_names() if not n.endswith("_small") and load_case_spec(n).validation is None]
+    return [n for n in case_names() if not n.endswith("_small") and not load_case_spec(n).validations]
 
 
 def oracle_row(name: str, layouts: int = ORACLE_LAYOUTS, seed: int = 0) -> dict:

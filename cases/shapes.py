@@ -95,7 +95,7 @@ def parse_shape(s: Reader) -> Shape:
     copies = s.integer("copies", 1, minimum=1)
     about = tuple(s.array("about", "length", np.zeros(2), shape=(2,)))
     s.finish()
-    where = s.prefix.split(".", 1)[1]
+    where = s.prefix.split(".", 1)[-1]
     if isinstance(shape, np.ndarray):
         return Shape(op, shape, copies, about, key=where)
     holes = tuple(np.asarray(h.coords)[:-1] for h in shape.interiors)

@@ -19,7 +19,8 @@ import shapely
 
 from fixbench.cases.errors import CaseError
 from fixbench.cases.geometry import build_polygon
-from fixbench.cases.materials import MATERIALS, Material
+from fixbench.cases.materials import MATERIALS, Laminate, Material
+from fixbench.cases.sections import Region, read_material, read_regions
 from fixbench.cases.shapes import Shape, base_name, drill_points, one_of, parse_shape, written
 from fixbench.cases.units import Reader
 
@@ -101,15 +102,28 @@ class Task:
     features: np.ndarray
 
 
+#: the references a [validation] row may name (cases/analytic.py computes each; docs/plate.md)
+VALIDATION_SCALES = {"q a^4 / D": ("a",), "P a^2 / D": ("a",), "F L / (E b t)": ("L", "b"),
+                     "F L / (b (A11 - A12^2 / A22))": ("L", "b"), "navier": ("a",), "strip": ("L", "b"),
+                     "case": ()}
+
+
 @dataclass(frozen=True)
 class Validation:
-    """An analytic reference: ``coefficient * scale`` against the computed ``quantity`` at ``at``."""
+    """An analytic reference: ``coefficient * scale`` against the computed ``quantity`` at ``at``.
+
+    ``scale`` "case" compares with another catalog case (``case``) at its point ``case_at``: a mirror
+    image, the plate turned, the same plate written another way.
+    """
 
     quantity: str
     at: np.ndarray
     coefficient: float
     scale: str
     lengths: dict[str, float]
+    label: str = ""
+    case: str = ""
+    case_at: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -142,8 +156,8 @@ class CaseSpec:
     source: str
     description: str
     part: str
-    material: Material
-    thickness: float
+    material: Material | Laminate
+    thickness: float  # the plate's, outside its regions (a laminate's: its plies')
     shapes: tuple[Shape, ...]
     polygon: shapely.Polygon
     mesh: MeshSpec
@@ -156,12 +170,20 @@ class CaseSpec:
     tasks: tuple[Task, ...]
     reward_sigma: tuple[float, float]  # (sigma_x, sigma_z) m, Gaussian reward
     measure_spacing: float
-    validation: Validation | None = None
+    validations: tuple[Validation, ...] = ()
     candidates_dropped: int = 0  # grid points outside the part or inside a hole, left out of candidates
     effector: Effector = Effector()
+    regions: tuple[Region, ...] = ()
+
+    @property
+    def thinnest(self) -> float:
+        """The least thickness anywhere on the part (w/t is judged against it)."""
+        return min([self.thickness, *(r.thickness for r in self.regions)])
 
     def with_material(self, material: Material) -> CaseSpec:
-        return replace(self, material=material)
+        """The whole part in another (isotropic) material: the plate and each thickness region keep
+        their thickness (a laminate's: its plies')."""
+        return replace(self, material=material, regions=tuple(replace(r, material=material) for r in self.regions))
 
     def with_agents(self, n_agents: int) -> CaseSpec:
         if self.agent_regions:
@@ -291,15 +313,16 @@ def _merge(base: dict, over: dict) -> dict:
 
 def load_case_spec(name_or_path: str | Path, material: str | None = None,
                    n_agents: int | None = None, fixtures_per_agent: int | None = None) -> CaseSpec:
-    """Read and validate a case; ``material``, ``n_agents`` and ``fixtures_per_agent`` override the
-    file's choice (the overrides together must leave a pad limit a limit)."""
+    """Read and validate a case; ``material`` (a grade, or the case's own material or layup by name),
+    ``n_agents`` and ``fixtures_per_agent`` override the file's choice (the overrides together must
+    leave a pad limit a limit)."""
     path = resolve_case(name_or_path)
     data, source = read_toml(path)
     spec = parse_case(data, source, default_name=path.stem)
-    if material is not None:
+    if material is not None and material != spec.material.name:  # the case's own: nothing to change
         if material not in MATERIALS:
-            raise CaseError(source, "--material",
-                            f"unknown material '{material}' (known: {', '.join(MATERIALS)})")
+            raise CaseError(source, "--material", f"unknown material '{material}' (known: "
+                            f"{', '.join(MATERIALS)}, or the case's own '{spec.material.name}')")
         spec = spec.with_material(MATERIALS[material])
     if fixtures_per_agent is not None:
         spec = spec.with_fixtures_per_agent(fixtures_per_agent)
@@ -318,13 +341,14 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
     part = case.text("part", name)
     case.finish()
 
-    material = _material(top.table("material", required=True))
-    thickness, shapes, polygon = _geometry(top.table("geometry", required=True))
+    material = read_material(top.table("material", required=True))
+    thickness, shapes, polygon = _geometry(top.table("geometry", required=True), material)
+    thickness_regions = read_regions(top, polygon, material, thickness)
     tasks = _tasks(top, polygon)
     mesh = _mesh(top.table("mesh", required=True), tasks)
     supports = tuple(_support(r, polygon) for r in top.tables("supports"))
     radius, holds, candidates, dropped = _fixtures(top.table("fixtures", required=True), polygon)
-    n_agents, regions, effector = _agents(top.table("agents", required=True), candidates)
+    n_agents, agent_regions, effector = _agents(top.table("agents", required=True), candidates)
 
     reward = top.table("reward") or Reader({}, source, "reward")
     sigma = (reward.number("sigma_x", "length", 10e-6, positive=True),
@@ -333,8 +357,9 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
     measure = top.table("measure") or Reader({}, source, "measure")
     spacing = measure.number("spacing", "length", mesh.size * 1.5, positive=True)
     measure.finish()
-    val = top.table("validation")
-    validation = _validation(val) if val is not None else None
+    raw = top.data.get("validation")
+    validations = tuple(_validation(v) for v in (top.tables("validation") if isinstance(raw, list) else
+                                                  [top.table("validation")] if raw is not None else []))
     top.finish()
 
     if not tasks:
@@ -344,27 +369,22 @@ def parse_case(data: dict, source: str, default_name: str = "case") -> CaseSpec:
     return CaseSpec(name=name, source=source, description=description, part=part,
                     material=material, thickness=thickness, shapes=shapes, polygon=polygon,
                     mesh=mesh, supports=supports, fixture_radius=radius, fixture_holds=holds,
-                    candidates=candidates, n_agents=n_agents, agent_regions=regions, tasks=tasks,
-                    reward_sigma=sigma, measure_spacing=spacing, validation=validation,
-                    candidates_dropped=dropped, effector=effector)
+                    candidates=candidates, n_agents=n_agents, agent_regions=agent_regions, tasks=tasks,
+                    reward_sigma=sigma, measure_spacing=spacing, validations=validations,
+                    candidates_dropped=dropped, effector=effector, regions=thickness_regions)
 
 
-def _material(r: Reader) -> Material:
-    name = r.text("name")
-    if name not in MATERIALS:
-        raise r.error("name", f"unknown material '{name}' (known: {', '.join(MATERIALS)})")
-    base = MATERIALS[name]
-    mat = Material(name, r.number("E", "pressure", base.E, positive=True),
-                   r.number("nu", None, base.nu), r.number("density", "density", base.density,
-                                                           positive=True))
-    if not -1.0 < mat.nu < 0.5:
-        raise r.error("nu", f"Poisson's ratio must lie in (-1, 0.5), got {mat.nu:g}")
-    r.finish()
-    return mat
-
-
-def _geometry(r: Reader) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
-    thickness = r.number("thickness", "length", positive=True)
+def _geometry(r: Reader, material: Material | Laminate) -> tuple[float, tuple[Shape, ...], shapely.Polygon]:
+    """Thickness, shapes and outline; a laminate's thickness is its plies' (a thickness given beside
+    them must agree)."""
+    if isinstance(material, Laminate):
+        thickness = r.number("thickness", "length", material.thickness, positive=True)
+        if abs(thickness - material.thickness) > 1e-9 * material.thickness:
+            raise r.error(next(k for k in r.data if k.startswith("thickness")),
+                          f"is {thickness * 1e3:g} mm but the plies of [material] add up to "
+                          f"{material.thickness * 1e3:g} mm (leave it out, or make them agree)")
+    else:
+        thickness = r.number("thickness", "length", positive=True)
     shapes: list[Shape] = []
     if r.has("outline"):
         shapes.append(Shape("union", r.array("outline", "length", shape=(-1, 2)),
@@ -635,12 +655,16 @@ def _tasks(top: Reader, polygon: shapely.Polygon) -> tuple[Task, ...]:
 def _validation(r: Reader) -> Validation:
     quantity = r.text("quantity", choices=("w", "ux", "uy"))
     at = r.array("at", "length", shape=(2,))
-    coefficient = r.number("coefficient", None, positive=True)
-    scale = r.text("scale", choices=("q a^4 / D", "P a^2 / D", "F L / (E b t)"))
+    scale = r.text("scale", choices=tuple(VALIDATION_SCALES))
+    coefficient = r.number("coefficient", None, ... if scale.endswith("/ D") else 1.0, positive=True)
     lengths = {k: r.number(k, "length", positive=True) for k in ("a", "b", "L") if r.has(k)}
-    need = ("L", "b") if scale.startswith("F") else ("a",)
-    for k in need:
+    for k in VALIDATION_SCALES[scale]:
         if k not in lengths:
             raise r.error(f"{k}_<unit>", f"missing (the scale '{scale}' needs it)")
+    label = r.text("label", "")
+    case, case_at = "", None
+    if scale == "case":
+        case = r.text("case")
+        case_at = r.array("case_at", "length", shape=(2,))
     r.finish()
-    return Validation(quantity, at, coefficient, scale, lengths)
+    return Validation(quantity, at, coefficient, scale, lengths, label, case, case_at)

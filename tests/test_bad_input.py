@@ -120,6 +120,22 @@ def _regions(*boxes: tuple[int, int]) -> tuple[str, str]:
     return "count = 2\n", f"count = {len(boxes)}\n{text}"
 
 
+def _layup(ply: str = "T300/5208", angles: str = "[0, 90]", thickness: str = "1.25", symmetric: str = "true",
+           name: str = "cfrp", angles_key: str = "angles_deg") -> tuple[str, str]:
+    """An edit making the test plate a laminate (two plies mirrored: 4 x 1.25 mm = its 5 mm)."""
+    return ('[material]\nname = "aluminium"\n',
+            f'[material]\nname = "{name}"\nsymmetric = {symmetric}\n[[material.plies]]\nply = "{ply}"\n'
+            f'{angles_key} = {angles}\nthickness_mm = {thickness}\n')
+
+
+def _region(*thickness: str, box: str = "rectangle_mm = [200, 0, 300, 200]", second: str = "") -> tuple[str, str]:
+    """An edit adding thickness regions: the first on ``box``, a second (if given) on ``second``."""
+    text = f'[[regions]]\nname = "pad 0"\n{box}\n{thickness[0]}\n'
+    if second:
+        text += f'[[regions]]\nname = "pad 1"\n{second}\n{thickness[1]}\n'
+    return OUTLINE, OUTLINE + text
+
+
 # (id, edits to the valid plate, text the one line must contain: the key as written and the problem)
 BAD_SHAPES = [
     ("unknown shape key", [_shape('op = "difference"', "triangle_mm = [1, 2, 3]")],
@@ -156,6 +172,29 @@ BAD_SHAPES = [
      ["geometry.shapes[0].dxf_in", "unknown unit 'in'", "plain dxf"]),
     ("DXF missing", [(OUTLINE, '[[geometry.shapes]]\ndxf = "no_such.dxf"\n')],
      ["geometry.shapes[0].dxf", "no_such.dxf", "cannot read"]),
+    ("ply of no thickness", [_layup(thickness="0")], ["material.plies[0].thickness_mm", "must be positive, got 0"]),
+    ("ply of negative thickness", [_layup(thickness="-0.125")],
+     ["material.plies[0].thickness_mm", "must be positive, got -0.125"]),
+    ("unknown ply material", [_layup(ply="T1000/unknown")],
+     ["material.plies[0].ply", "unknown ply material 'T1000/unknown'", "T300/5208"]),
+    ("ply angle not a number", [_layup(angles='[0, "ninety"]')],
+     ["material.plies[0].angles_deg", "must be a (nested) list of numbers"]),
+    ("ply angle without its unit", [_layup(angles_key="angles")],
+     ["material.plies[0].angles", "needs its unit in the key, e.g. angles_rad"]),
+    ("unsymmetric layup", [_layup(symmetric="false")], ["material.plies", "not symmetric about its mid-plane"]),
+    ("layup named as a grade", [_layup(name="steel")], ["material.name", "a layup's name"]),
+    ("plate thickness beside plies", [_layup(), ("thickness_mm = 5", "thickness_mm = 6")],
+     ["geometry.thickness_mm", "the plies of [material] add up to 5 mm"]),
+    ("region thicker than a plate", [_region("thickness_mm = 30")],
+     ["regions[0].thickness_mm", "thicker than the plate model allows", "t / span = 0.15 above 0.1"]),
+    ("overlapping regions",
+     [_region("thickness_mm = 8", "thickness_mm = 9", second="rectangle_mm = [250, 0, 350, 200]")],
+     ["regions[1].thickness_mm", "overlaps region 'pad 0' with a different thickness"]),
+    ("region off the part", [_region("thickness_mm = 8", box="rectangle_mm = [500, 0, 600, 200]")],
+     ["regions[0].rectangle_mm", "covers no part of the plate"]),
+    ("region of a laminate without plies", [_layup(), _region("thickness_mm = 8")],
+     ["regions[0].plies", "a region of a laminate gives its own"]),
+    ("region of no thickness", [_region("thickness_mm = 0")], ["regions[0].thickness_mm", "must be positive, got 0"]),
 ]
 
 

@@ -79,7 +79,7 @@ def test_validate_parts(capsys, monkeypatch):
 def test_validate_names_every_full_part_and_refuses_an_unknown_one(capsys):
     from fixbench.cases.part_checks import full_parts
 
-    assert full_parts() == ["bus_panel", "fan", "wing_panel", "wing_panel_pairs", "wing_spar"]
+    assert full_parts() == ["bus_panel", "cfrp_wing_panel", "fan", "wing_panel", "wing_panel_pairs", "wing_spar"]
     assert main(["validate", "--part", "wing_panel_tiny"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--part: wing_panel_tiny: is not a catalog case with fixtures" in err

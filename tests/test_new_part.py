@@ -64,3 +64,17 @@ def test_the_run_proves_its_positions_and_ranks_every_planner(walk):
     assert sorted(main.index) == sorted(planners)
     assert (main["problems"] == 2).all() and main["mean_rank"].between(1, len(planners)).all()
     assert (main["panel_small"] >= 0).all(), "a regret below the proven optimum"
+
+
+def test_the_cfrp_variant_is_a_laminate_with_its_pad_up(walk):
+    from fixbench.cases.materials import Laminate
+    from fixbench.cases.spec import load_case_spec
+
+    work, out = walk
+    assert "panel_qi" in out[-1][0], "fixbench cases did not list the layup"
+    spec = load_case_spec(work / "panel_cfrp.toml")
+    assert isinstance(spec.material, Laminate) and len(spec.material.layers) == 32
+    assert spec.thickness == pytest.approx(0.004, rel=1e-12)
+    (pad,) = spec.regions
+    assert pad.thickness == pytest.approx(0.006, rel=1e-12)
+    assert not pad.polygon.intersects(spec.polygon.interiors[0].centroid), "the cut-out is not a hole of the pad"

@@ -26,8 +26,8 @@ SEEDS = range(5)
 
 
 def test_every_part_has_a_small_case():
-    assert sorted(SMALL) == ["bus_panel_small", "fan_small", "wing_panel_pads_small", "wing_panel_pairs_small",
-                             "wing_panel_small", "wing_spar_small"]
+    assert sorted(SMALL) == ["bus_panel_small", "cfrp_wing_panel_small", "fan_small", "wing_panel_pads_small",
+                             "wing_panel_pairs_small", "wing_panel_small", "wing_spar_small"]
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c for c in SMALL])

@@ -32,13 +32,19 @@ def candidate_groups(problem: Problem) -> list[tuple[str, np.ndarray]]:
 
 
 def case_figure(problem: Problem):
-    """Part, mesh, fixture candidates coloured by robot, supports and task load points; the legend,
+    """Part, mesh, thickness regions, fixture candidates coloured by robot, supports and task load
+    points; the legend,
     beside the part (it hides no candidate), lists each robot's candidates (:func:`candidate_groups`)."""
     model = problem.model
     fig, ax = plt.subplots(figsize=(9.5, 7))
     p = model.mesh.p * 1e3
     ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
     outline(ax, problem)
+    for i, region in enumerate(problem.spec.regions):  # thickness regions, shaded, with their thickness
+        for k, piece in enumerate(getattr(region.polygon, "geoms", [region.polygon])):
+            x, y = np.asarray(piece.exterior.coords).T * 1e3
+            ax.fill(x, y, color="tab:olive", alpha=0.25, lw=0,
+                    label=f"{region.name}: {region.thickness * 1e3:.3g} mm" if k == 0 else None)
     colors = plt.get_cmap("tab10")
     for a, (label, idx) in enumerate(candidate_groups(problem)):
         c = problem.candidates[idx] * 1e3

@@ -19,7 +19,7 @@ from fixbench.bench.records.keys import split
 from fixbench.bench.records.rows import DEFAULT_MODE, MODES
 from fixbench.cases.errors import CaseError
 from fixbench.cases.materials import MATERIALS
-from fixbench.cases.spec import resolve_case
+from fixbench.cases.spec import load_case_spec, resolve_case
 from fixbench.cases.units import Reader
 
 KEYS = ("name", "cases", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
@@ -234,9 +234,11 @@ def load_matrix(path: str | Path) -> Matrix:
             raise r.error(f"per_case.{c}", "must be a table of materials and/or agents")
         if cr.raw("materials", None) is not None:
             ms = _list(cr, "materials", str)
+            own = load_case_spec(where).material.name  # a laminate part runs in its own layup
             for m in ms:
-                if m not in MATERIALS:
-                    raise cr.error("materials", f"unknown material '{m}' (known: {', '.join(MATERIALS)})")
+                if m not in MATERIALS and m != own:
+                    raise cr.error("materials", f"unknown material '{m}' (known: {', '.join(MATERIALS)}, "
+                                                f"or the case's own '{own}')")
             per_case.append((where, "materials", tuple(ms)))
         if cr.raw("agents", None) is not None:
             ns = _list(cr, "agents", int)
@@ -267,8 +269,6 @@ def load_matrix(path: str | Path) -> Matrix:
             raise r.error("mode", f"must be one of {', '.join(MODES)}, got '{m}'")
     tasks = r.integer("tasks", None, minimum=1)
     if tasks is not None:
-        from fixbench.cases.spec import load_case_spec
-
         for c in cases:
             try:
                 n = len(load_case_spec(c).tasks)

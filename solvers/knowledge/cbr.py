@@ -76,6 +76,7 @@ from scipy.spatial import cKDTree
 
 from fixbench.cases import cache
 from fixbench.cases.files import write_text_atomic
+from fixbench.cases.materials import engineering_constants
 from fixbench.cases.problem import Problem, load_problem
 from fixbench.solvers.base import Planner, PlannerConfig, PlannerError, TracedEvaluator, at_least, require
 from fixbench.solvers.registry import available, get
@@ -183,8 +184,9 @@ def part_features(problem: Problem) -> np.ndarray:
 
 
 def material_features(problem: Problem) -> np.ndarray:
-    m = problem.spec.material
-    return np.array([np.log10(m.E), m.nu, np.log10(m.density)])
+    """log E, nu, log density (a laminate: its in-plane engineering constants along x)."""
+    E, nu, density = engineering_constants(problem.spec.material)
+    return np.array([np.log10(E), nu, np.log10(density)])
 
 
 def task_features(problem: Problem, task: int) -> np.ndarray:
