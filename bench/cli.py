@@ -291,8 +291,8 @@ def perf(cases: tuple[str, ...], batch: int, planner_name: str | None, vary: str
     else:
         import pandas as pd
 
-        table = pd.DataFrame(results).set_index("case").T
-        click.echo(table.to_markdown(floatfmt=".4g"))
+        shown = [{k: f"{v:.4g}" if isinstance(v, float) else v for k, v in res.items()} for res in results]
+        click.echo(pd.DataFrame(shown).set_index("case").T.to_markdown())
 
 
 @cli.command()
