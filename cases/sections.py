@@ -34,7 +34,6 @@ class Region:
     polygon: shapely.Polygon | shapely.MultiPolygon
     material: Material | Laminate
     thickness: float
-    key: str  # where the file gives it, for messages
 
     def stiffness(self) -> tuple[np.ndarray, np.ndarray, float]:
         return self.material.stiffness(self.thickness)
@@ -159,7 +158,7 @@ def read_regions(top: Reader, polygon: shapely.Polygon, material: Material | Lam
             t = r.number("thickness", "length", positive=True)
             key = next(k for k in r.data if base_name(k) == "thickness")
         check_thin(r, key, t, polygon)
-        region = Region(name, clipped, mat, t, r.key(key))
+        region = Region(name, clipped, mat, t)
         for other in regions:
             if (other.material, other.thickness) != (mat, t) and \
                     other.polygon.intersection(clipped).area > 1e-9 * polygon.area:

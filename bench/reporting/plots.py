@@ -40,7 +40,7 @@ def case_figure(problem: Problem):
     p = model.mesh.p * 1e3
     ax.triplot(mtri.Triangulation(p[0], p[1], model.mesh.t.T), color="0.8", lw=0.3)
     outline(ax, problem)
-    for i, region in enumerate(problem.spec.regions):  # thickness regions, shaded, with their thickness
+    for region in problem.spec.regions:  # thickness regions, shaded, with their thickness
         for k, piece in enumerate(getattr(region.polygon, "geoms", [region.polygon])):
             x, y = np.asarray(piece.exterior.coords).T * 1e3
             ax.fill(x, y, color="tab:olive", alpha=0.25, lw=0,
