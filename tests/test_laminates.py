@@ -1,4 +1,5 @@
-"""Laminates, thickness regions and loads in any direction (docs/materials.md, docs/plate.md#laminates).
+"""Laminates, thickness regions and loads in any direction (docs/materials.md,
+docs/plate.md#laminates-and-thickness-regions).
 
 Classical lamination theory against the closed forms it must reproduce, the general (anisotropic)
 stiffness against the isotropic one, regions taken element by element on a mesh that follows them,
