@@ -620,6 +620,50 @@ def check(case: str, material: str | None, out: Path | None, as_json: bool) -> N
         click.echo(f"warning: {w}", err=True)
 
 
+@cli.command()
+@click.argument("family")
+@click.option("--seed", type=int, required=True, help="Seed of the draws (an integer).")
+@click.option("--count", type=click.IntRange(min=1), default=1, show_default=True, help="Parts to generate.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder of the case files, their references and suite.json (rerunning resumes).")
+@click.option("--set", "sets", multiple=True, metavar="NAME=RANGE",
+              help="Narrow a parameter: NAME=A:B or NAME=A, or NAME=X,Y for a choice (see `fixbench families`).")
+def generate(family: str, seed: int, count: int, out: Path, sets: tuple[str, ...]) -> None:
+    """Generate COUNT parts of FAMILY from SEED into OUT: case files, each checked (mesh, w/t of its
+    proven optima) and proven position by position, redrawn with its reason when a check fails
+    (docs/families.md)."""
+    from fixbench.bench.generate import generate as run_generate
+    from fixbench.cases.families import FamilyError
+
+    overrides = {}
+    for item in sets:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise FamilyError(f"--set {item}", "write NAME=RANGE (NAME=A:B, NAME=A or NAME=X,Y)")
+        overrides[key.strip()] = value.strip()
+    suite = run_generate(family, seed, count, out, overrides)
+    redraws = sum(len(p["redraws"]) for p in suite["parts"])
+    click.echo(f"{count} {family} part(s) in {out} ({redraws} redraw(s), every position proven); manifest "
+               f"{out / 'suite.json'}")
+
+
+@cli.command()
+@click.option("--json", "as_json", is_flag=True, help="Print strict JSON.")
+def families(as_json: bool) -> None:
+    """The part families `fixbench generate` draws from, and each one's parameter ranges."""
+    from fixbench.cases.families import FAMILIES
+
+    table = {name: {"summary": f.summary, "ranges": {k: r.text() for k, r in f.ranges.items()}}
+             for name, f in FAMILIES.items()}
+    if as_json:
+        echo_json(table)
+        return
+    for name, f in table.items():
+        click.echo(f"{name}: {f['summary']}")
+        for k, r in f["ranges"].items():
+            click.echo(f"  {k} = {r}")
+
+
 @cli.group()
 def references() -> None:
     """Regret references of the full parts: build them, merge better layouts from a run."""
