@@ -648,6 +648,21 @@ def generate(family: str, seed: int, count: int, out: Path, sets: tuple[str, ...
 
 
 @cli.command()
+@click.argument("suite")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder of the generated parts (default: beside the suite file, NAME/).")
+def suite(suite: str, out: Path | None) -> None:
+    """Generate every part of SUITE (a suite file, or a shipped suite: families-train, families-test),
+    each as `fixbench generate` makes it, and the suite's manifest (docs/families.md#suites)."""
+    from fixbench.bench.generate import generate_suite
+
+    made = generate_suite(suite, out)
+    redraws = sum(len(p["redraws"]) for p in made["parts"])
+    click.echo(f"suite {made['suite']}: {len(made['parts'])} parts of {len(made['generations'])} generation(s), "
+               f"{redraws} redraw(s), every position proven")
+
+
+@cli.command()
 @click.option("--json", "as_json", is_flag=True, help="Print strict JSON.")
 def families(as_json: bool) -> None:
     """The part families `fixbench generate` draws from, and each one's parameter ranges."""

@@ -208,3 +208,26 @@ def _prove(problem) -> list[dict]:
         out.append({"layout": layout.tolist(), "max_deformation_m": float(problem.deformation(m).max_u[0]),
                     "w_m": float(m[0, 2])})
     return out
+
+
+def generate_suite(suite: str | Path, out: Path | None = None, settings: GenerateSettings | None = None,
+                   log=sys.stderr) -> dict:
+    """Generate every part of a suite (:mod:`fixbench.cases.families.suites`; a shipped suite by name)
+    into ``out`` (default: beside the suite file, ``NAME/``), one folder a generation
+    (``FAMILY_sSEED/``, as :func:`generate` writes it, resumable), and write ``out/suite.json``: the
+    suite's name, its generations and every part (its family, case file relative to ``out``, and what
+    :func:`generate` records of it)."""
+    from fixbench.cases.families.suites import load_suite
+
+    s = load_suite(suite)  # every key, family and range checked before any part is drawn
+    out = Path(out) if out is not None else Path(s.source).with_suffix("")
+    parts, generations = [], []
+    for g in s.generations:
+        made = generate(g.family, g.seed, g.count, out / g.folder, g.overrides, settings, log)
+        generations.append({"family": g.family, "seed": g.seed, "count": g.count, "overrides": g.overrides,
+                            "folder": g.folder})
+        parts += [{"family": g.family, **p, "file": f"{g.folder}/{p['file']}"} for p in made["parts"]]
+    manifest = {"format": SUITE_FORMAT, "suite": s.name, "description": s.description,
+                "generations": generations, "parts": parts}
+    write_text_atomic(out / "suite.json", json.dumps(manifest, indent=1, allow_nan=False) + "\n", ".tmp")
+    return manifest

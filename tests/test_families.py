@@ -14,12 +14,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fixbench.bench.cli import main
-from fixbench.bench.generate import GenerateSettings, generate
+from fixbench.bench.generate import GenerateSettings, generate, generate_suite
 from fixbench.cases.errors import FixbenchError
 from fixbench.cases.families import FAMILIES, Choice, family
 from fixbench.cases.families.base import case_text
+from fixbench.cases.families.suites import SUITE_DIR, load_suite
 from fixbench.cases.problem import load_problem
 from fixbench.cases.references import case_fingerprint
+from fixbench.cases.spec import load_case_spec
 
 #: the cheapest family to generate and prove (a few seconds a part)
 CHEAP = "blade"
@@ -157,3 +159,80 @@ def test_families_lists_every_family_with_its_ranges(capsys):
     listed = json.loads(capsys.readouterr().out)
     assert set(listed) == set(FAMILIES) and len(listed) >= 4
     assert listed["skin_panel"]["ranges"]["width_mm"] == "400:900"
+
+
+SUITE = """name = "mini"
+[[parts]]
+family = "blade"
+seed = 1
+count = 1
+[[parts]]
+family = "blade"
+seed = 2
+count = 1
+set = { agents = 3, bands = "4:5" }
+"""
+
+
+def test_a_suite_is_its_generations_under_one_manifest(tmp_path):
+    path = tmp_path / "mini.toml"
+    path.write_text(SUITE)
+    made = generate_suite(path)
+    assert [p["file"] for p in made["parts"]] == ["blade_s1/blade_s1_000.toml", "blade_s2/blade_s2_000.toml"]
+    assert json.loads((tmp_path / "mini" / "suite.json").read_text()) == made
+    assert made["parts"][1]["params"]["agents"] == 3 and made["parts"][1]["params"]["bands"] in (4, 5)
+    assert all((tmp_path / "mini" / p["file"]).is_file() for p in made["parts"])
+
+
+BAD_SUITES = [
+    ('name = "x"\nsize = 3\n', ["size", "unknown key"]),
+    ('[[parts]]\nfamily = "gear"\nseed = 0\ncount = 1\n', ["parts[0].family", "gear"]),
+    ('[[parts]]\nfamily = "blade"\nseed = 0.5\ncount = 1\n', ["parts[0].seed", "whole number"]),
+    ('[[parts]]\nfamily = "blade"\nseed = 0\ncount = 0\n', ["parts[0].count"]),
+    ('[[parts]]\nfamily = "blade"\nseed = 0\ncount = 1\nset = { span_mm = "1:2" }\n', ["parts[0].set.span_mm",
+                                                                                     "no such parameter"]),
+    ('[[parts]]\nfamily = "blade"\nseed = 0\ncount = 1\n[[parts]]\nfamily = "blade"\nseed = 0\ncount = 2\n',
+     ["parts", "twice"]),
+    ('name = "x"\n', ["parts", "at least one"]),
+]
+
+
+@pytest.mark.parametrize("text,needles", BAD_SUITES, ids=[n[0] for _, n in BAD_SUITES])
+def test_bad_suite_files(capsys, tmp_path, text, needles):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    rc = main(["suite", str(path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and str(path) in lines[0], err
+    assert all(n in lines[0] for n in needles), lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", ["families-train", "families-test"])
+def test_a_shipped_suite_is_generated_and_every_position_proven(name):
+    """The committed parts of a shipped suite are the suite file's generations, each a case file that
+    loads, with a reference of its own case definition (fingerprint) proving every position."""
+    suite, folder = load_suite(name), SUITE_DIR / name
+    manifest = json.loads((folder / "suite.json").read_text())
+    assert [(g["family"], g["seed"], g["count"]) for g in manifest["generations"]] == \
+        [(g.family, g.seed, g.count) for g in suite.generations]
+    assert len(manifest["parts"]) == sum(g.count for g in suite.generations)
+    for part in manifest["parts"]:
+        path = folder / part["file"]
+        spec = load_case_spec(path)
+        ref = json.loads((path.parent / "references" / f"{spec.name}__{part['material']}__a{part['agents']}.json")
+                         .read_text())
+        assert ref["case_fingerprint"] == case_fingerprint(path, part["material"], part["agents"]), path
+        assert len(ref["tasks"]) == len(spec.tasks) == part["tasks"]
+        assert {t["status"] for t in ref["tasks"]} == {"proven"}
+        assert part["optimum_w_over_t"] <= GenerateSettings().w_over_t
+
+
+def test_the_test_suite_shares_no_seed_with_training_and_holds_out_a_family():
+    train, test = load_suite("families-train"), load_suite("families-test")
+    assert not {g.folder for g in train.generations} & {g.folder for g in test.generations}
+    assert set(test.families) - set(train.families) == {"cfrp_skin"}
+    assert len(set(train.families) | set(test.families)) >= 4
+    assert sum(g.count for g in train.generations) >= 40 and sum(g.count for g in test.generations) >= 40

@@ -31,7 +31,9 @@ def test_wheel_has_one_top_level_package_and_its_data(wheel):
     for needed in ("fixbench/__main__.py", "fixbench/cases/catalog/wing_panel.toml",
                    "fixbench/cases/catalog/references/wing_panel__aluminium__a5.json",
                    "fixbench/bench/matrices/default.toml", "fixbench/bench/matrices/paper.toml",
-                   "fixbench/bench/cli_common.py"):
+                   "fixbench/bench/cli_common.py", "fixbench/cases/suites/families-test.toml",
+                   "fixbench/cases/suites/families-test/suite.json",
+                   "fixbench/cases/suites/families-test/cfrp_skin_s1000/cfrp_skin_s1000_000.toml"):
         assert needed in names, needed
     # every module of the three folders, subpackages included (pyproject.toml lists the packages one by one),
     # and none the tree no longer has (a stale build/ would ship a moved module at its old path)

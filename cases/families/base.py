@@ -32,6 +32,7 @@ class FamilyError(FixbenchError):
     """A family name, parameter or range that cannot be used: one line naming it."""
 
     def __init__(self, key: str, problem: str):
+        self.key, self.problem = key, problem
         super().__init__(f"generate {key}: {problem}")
 
 

@@ -68,8 +68,9 @@ class SkinPanel(Family):
         need_w, need_h = self.room(p)
         cell = p["width_mm"] / p["cutouts"]
         if need_w > cell or need_h > p["height_mm"]:
-            return (f"cut-out {p['cutout_width_mm']:g} x {p['cutout_height_mm']:g} mm with its ring does not fit "
-                    f"a {cell:.1f} x {p['height_mm']:g} mm cell of the panel")
+            return (f"cut-out {p['cutout_width_mm']:g} x {p['cutout_height_mm']:g} mm needs {need_w:.1f} x "
+                    f"{need_h:.1f} mm with its rivet ring and margins, its cell of the panel is {cell:.1f} x "
+                    f"{p['height_mm']:g} mm")
         return None
 
     def cutouts(self, p: dict) -> list[dict]:
