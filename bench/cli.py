@@ -370,7 +370,7 @@ def solve(case, planner_name, material, agents, fixtures_per_agent, budget, seed
               "mode=, seed=, samples_per_task= filters (comma-separated); a later run without --only "
               "completes the matrix.")
 def run(matrix, out, executor, workers, ray_address, cell_timeout, retry_failed, only) -> None:
-    """Run the benchmark MATRIX (a TOML file, or the name of a shipped one: default, paper, sweep)
+    """Run the benchmark MATRIX (a TOML file, or the name of a shipped one: default, paper, sweep, families)
     into OUT; rerun to resume."""
     from fixbench.bench.running.runner import run_matrix
 

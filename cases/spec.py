@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -25,6 +26,8 @@ from fixbench.cases.shapes import Shape, base_name, drill_points, one_of, parse_
 from fixbench.cases.units import Reader
 
 CATALOG = Path(__file__).parent / "catalog"
+#: the shipped suites of generated parts (docs/families.md#suites), each part a case by its name
+SUITES = Path(__file__).parent / "suites"
 DOF_NAMES = ("ux", "uy", "w", "rot")
 SUPPORT_KINDS = {"clamped": ("ux", "uy", "w", "rot"), "pinned": ("ux", "uy", "w"),
                  "simple": ("w",), "membrane": ("ux", "uy")}
@@ -240,9 +243,19 @@ def resolve_case(name_or_path: str | Path) -> Path:
             raise CaseError(str(p), "", "no such case file")
         return p
     cat = CATALOG / f"{name_or_path}.toml"
-    if not cat.is_file():
-        raise CaseError(str(name_or_path), "", f"unknown case (known: {', '.join(case_names())})")
-    return cat
+    if cat.is_file():
+        return cat
+    if part := suite_part(str(name_or_path)):
+        return part
+    raise CaseError(str(name_or_path), "", f"unknown case (known: {', '.join(case_names())}; or a part of a "
+                    "shipped suite, docs/families.md#suites)")
+
+
+def suite_part(name: str) -> Path | None:
+    """The case file of the generated part ``name`` of a shipped suite (``SUITES/SUITE/FAMILY_sSEED/NAME.toml``),
+    or None."""
+    found = sorted(SUITES.glob(f"*/*/{name}.toml")) if re.fullmatch(r"[\w.-]+", name) else []
+    return found[0] if found else None
 
 
 def _display(path: Path) -> str:

@@ -15,13 +15,14 @@ from hypothesis import strategies as st
 
 from fixbench.bench.cli import main
 from fixbench.bench.generate import GenerateSettings, generate, generate_suite
-from fixbench.cases.errors import FixbenchError
+from fixbench.bench.running.matrix import load_matrix
+from fixbench.cases.errors import CaseError, FixbenchError
 from fixbench.cases.families import FAMILIES, Choice, family
 from fixbench.cases.families.base import case_text
 from fixbench.cases.families.suites import SUITE_DIR, load_suite
 from fixbench.cases.problem import load_problem
 from fixbench.cases.references import case_fingerprint
-from fixbench.cases.spec import load_case_spec
+from fixbench.cases.spec import load_case_spec, resolve_case
 
 #: the cheapest family to generate and prove (a few seconds a part)
 CHEAP = "blade"
@@ -236,3 +237,23 @@ def test_the_test_suite_shares_no_seed_with_training_and_holds_out_a_family():
     assert set(test.families) - set(train.families) == {"cfrp_skin"}
     assert len(set(train.families) | set(test.families)) >= 4
     assert sum(g.count for g in train.generations) >= 40 and sum(g.count for g in test.generations) >= 40
+
+
+def test_a_matrix_runs_a_shipped_suite_by_its_parts_names(tmp_path):
+    """``suites = [...]`` in a matrix adds the suite's parts as cases by name, so a cell's id does not
+    depend on where the matrix file lies."""
+    text = 'suites = ["families-test"]\nseeds = [0]\nsamples_per_task = [10]\nplanners = ["random"]\n'
+    ids = []
+    for folder in ("a", "b/c"):
+        path = tmp_path / folder / "m.toml"
+        path.parent.mkdir(parents=True)
+        path.write_text(text)
+        m = load_matrix(path)
+        ids.append([c.id for c in m.cells()])
+    manifest = json.loads((SUITE_DIR / "families-test" / "suite.json").read_text())
+    assert list(m.cases) == [p["name"] for p in manifest["parts"]]
+    assert ids[0] == ids[1]
+    assert resolve_case(m.cases[-1]) == SUITE_DIR / "families-test" / manifest["parts"][-1]["file"]
+    (tmp_path / "bad.toml").write_text(text.replace("families-test", "families-nope"))
+    with pytest.raises(CaseError, match="suites: 'families-nope' is not a shipped suite"):
+        load_matrix(tmp_path / "bad.toml")

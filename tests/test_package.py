@@ -89,5 +89,5 @@ def test_shipped_matrices_by_name_from_any_directory(tmp_path, monkeypatch):
     assert load_matrix("paper").name == "paper"
     (tmp_path / "default.toml").write_text('name = "mine"\ncases = ["fan_small"]\n[[planners]]\nname = "random"\n')
     assert find_matrix("default") == Path("default.toml")  # a file of the user's wins
-    with pytest.raises(CaseError, match="shipped matrices: default, paper, sweep"):
+    with pytest.raises(CaseError, match="shipped matrices: default, families, paper, sweep"):
         load_matrix("nosuch")

@@ -22,8 +22,8 @@ from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import load_case_spec, resolve_case
 from fixbench.cases.units import Reader
 
-KEYS = ("name", "cases", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task", "agents", "mode",
-        "tasks", "heldout_every", "proof_limit", "description")
+KEYS = ("name", "cases", "suites", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task",
+        "agents", "mode", "tasks", "heldout_every", "proof_limit", "description")
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,17 @@ def _beside(matrix: Path, case: str) -> str:
     return str(matrix.parent / case) if case.endswith(".toml") and not Path(case).is_absolute() else case
 
 
+def suite_parts(r: Reader, suite: str) -> list[str]:
+    """The case names of a shipped suite's generated parts (``suites = [...]``: docs/families.md#suites)."""
+    from fixbench.cases.families.suites import SUITE_DIR, shipped_suites
+
+    manifest = SUITE_DIR / suite / "suite.json"
+    if suite not in shipped_suites() or not manifest.is_file():
+        raise r.error("suites", f"'{suite}' is not a shipped suite with its parts generated (shipped: "
+                      f"{', '.join(shipped_suites())})")
+    return [Path(p["file"]).stem for p in json.loads(manifest.read_text(encoding="utf-8"))["parts"]]
+
+
 def _list(r: Reader, key: str, kind, default=...) -> list:
     value = r.raw(key, default)
     values = value if isinstance(value, list) else [value]
@@ -213,13 +224,15 @@ def load_matrix(path: str | Path) -> Matrix:
     name = r.text("name", path.stem)
     r.text("description", "")
     cases = []
-    for c in _list(r, "cases", str):
+    for c in _list(r, "cases", str, []) if "cases" in data or "suites" not in data else []:
         where = _beside(path, c)
         try:
             resolve_case(where)
         except CaseError as exc:
             raise r.error("cases", f"'{c}': {exc.problem}") from None
         cases.append(where)
+    for s in _list(r, "suites", str) if "suites" in data else []:
+        cases += [c for c in suite_parts(r, s) if c not in cases]
     materials = _list(r, "materials", str, [None]) if "materials" in data else [None]
     for m in materials:
         if m is not None and m not in MATERIALS:

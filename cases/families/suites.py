@@ -24,10 +24,11 @@ from pathlib import Path
 
 from fixbench.cases.errors import CaseError
 from fixbench.cases.families import FAMILIES, FamilyError, family
+from fixbench.cases.spec import SUITES
 from fixbench.cases.units import Reader
 
 #: the shipped suites' folder: NAME.toml and its generated parts in NAME/
-SUITE_DIR = Path(__file__).resolve().parent.parent / "suites"
+SUITE_DIR = SUITES
 KEYS = ("name", "description", "parts")
 
 
