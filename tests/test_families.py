@@ -257,3 +257,35 @@ def test_a_matrix_runs_a_shipped_suite_by_its_parts_names(tmp_path):
     (tmp_path / "bad.toml").write_text(text.replace("families-test", "families-nope"))
     with pytest.raises(CaseError, match="suites: 'families-nope' is not a shipped suite"):
         load_matrix(tmp_path / "bad.toml")
+
+
+def test_the_report_of_a_run_on_generated_parts_answers_per_family(tmp_path):
+    """A run on suite parts gets the family tables: the pooled IQM is rliable's IQM of every cell's
+    per-position regrets against the run's proven optima, and Kendall's tau compares the families."""
+    import pandas as pd
+
+    from fixbench.bench.reporting.report import make_report
+    from fixbench.bench.reporting.stats import iqm
+
+    cases = ["blade_s1000_000", "bracket_s1000_000"]
+    matrix = tmp_path / "m.toml"
+    matrix.write_text(f'cases = {json.dumps(cases)}\nseeds = [0, 1]\nsamples_per_task = [10]\nmode = "per-task"\n'
+                      'planners = ["random", "greedy", "local"]\n')
+    assert main(["run", str(matrix), "--out", str(tmp_path / "run"), "--workers", "1"]) == 0
+    made = make_report(tmp_path / "run", fields=False)
+    iq = pd.read_csv(made["tables"]["family_iqm"]).set_index("planner")
+    assert {"blade, k=10", "bracket, k=10", "all parts, k=10"} <= set(iq.columns)
+    opt = {}
+    for f in (tmp_path / "run" / "reference").glob("*.json"):
+        ref = json.loads(f.read_text())
+        opt[ref["case"]] = np.array(ref["per_task"])
+    regrets = []
+    for f in (tmp_path / "run" / "rows").glob("*.json"):
+        row = json.loads(f.read_text())
+        if row["planner"] == "random":
+            regrets.append((np.array(row["per_task_m"]) / opt[row["case"]] - 1) * 100)
+    assert len(regrets) == 4
+    assert iq.loc["random", "all parts, k=10"] == pytest.approx(iqm(np.concatenate(regrets)), rel=1e-9)
+    tau = pd.read_csv(made["tables"]["family_rank_correlation"])
+    assert len(tau) == 3 and tau["kendall_tau"].between(-1, 1).all()  # blade-bracket, blade-all, bracket-all
+    assert "cpu_regret" in made["figures"] and "family_headline" in made["tables"]

@@ -9,11 +9,11 @@ import pytest
 
 from fixbench.bench.records.rows import in_matrix_order
 from fixbench.bench.reporting.comparison import (
-    _scored,
     common_ranks,
     headline_table,
     iqm_table,
     main_table,
+    scored_cells,
     show_headline,
 )
 from fixbench.bench.reporting.merge import load_runs
@@ -44,7 +44,7 @@ def test_headline_takes_each_familys_best_and_compares_learner_with_the_rest(tin
     others = iq[iq["planner"] != "greedy"]
     best_other = others.loc[others[column].idxmin(), "planner"]
     assert p["entry"] == f"greedy vs {best_other}"  # the best learner against the best of the other families
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     want = probability_of_improvement(scored.loc[scored["label"] == "greedy", "regret_pct"],
                                       scored.loc[scored["label"] == best_other, "regret_pct"])
     assert (p["iqm"], p["iqm_lo"], p["iqm_hi"]) == pytest.approx(want)

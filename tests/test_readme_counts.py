@@ -68,6 +68,8 @@ CLAIMS = [
     ("README.md", r"`bench/matrices/default\.toml`: [\d,]+ cells, (?P<n>\d+) planners",
      lambda: len({p.name for p in matrix("default").planners})),
     ("README.md", r"The catalog's (?P<n>\d+) cases", lambda: len(case_names())),
+    ("docs/families.md", r"five seeds \((?P<n>[\d,]+) cells; `fixbench run families",
+     lambda: len(matrix("families").cells())),
     ("docs/references.md", r"(?P<n>[\d,]+) of its [\d,]+ cells", timing_subset),
     ("docs/references.md", r"[\d,]+ of its (?P<n>[\d,]+) cells", lambda: len(matrix("default").cells())),
     ("docs/results.md", r"All (?P<n>[\d,]+) cells of the paper matrix", lambda: len(matrix("paper").cells())),

@@ -54,7 +54,7 @@ NOT_COMPARED = ("exact",)
 
 # rows scored against the reference --------------------------------------------------------------------
 
-def _scored(rows: pd.DataFrame) -> pd.DataFrame:
+def scored_cells(rows: pd.DataFrame) -> pd.DataFrame:
     """Successful rows with a finite relative regret, with ``regret_pct`` (%)."""
     ok = rows[rows["ok"] & np.isfinite(rows["relative_regret"])]
     return ok.assign(regret_pct=ok["relative_regret"] * 100)
@@ -71,7 +71,7 @@ def _regret_stats(values) -> dict:
 def sweep_table(rows: pd.DataFrame) -> pd.DataFrame:
     """Budget sweep: per case x planner label x samples a task, the mean relative regret (%) of the
     per-task-mode cells with its 95 % CI, and the number of cells (failed ones left out)."""
-    d = _scored(rows)
+    d = scored_cells(rows)
     d = d[(d["mode"] == "per-task") & np.isfinite(d["samples_per_task"])]
     recs = []
     for (case, label, spt), g in d.groupby(["case", "label", "samples_per_task"], sort=True):
@@ -117,7 +117,7 @@ def heldout_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
     the per-task cells (which pay samples on every task) scored on the same held-out tasks, one line a
     (label, samples a task, budget). Rows without a per-task list or a reference are skipped."""
     ok = rows[rows["ok"]]
-    held = _scored(ok[ok["mode"] == "held-out"])
+    held = scored_cells(ok[ok["mode"] == "held-out"])
     recs = []
     for (case, every), hc in held.groupby(["case", "heldout_every"], sort=True):
         every = int(every)
@@ -156,7 +156,7 @@ def improvement_table(rows: pd.DataFrame, group: Sequence[str] = ()) -> pd.DataF
     CI and the cells of each. Each unordered pair is bootstrapped once: P(Y < X) = 1 - P(X < Y) holds in
     every resample (ties count 1/2 both ways), so the reverse line is its mirror."""
     keys = ["case", *group]
-    d = _scored(rows)
+    d = scored_cells(rows)
     recs = []
     for gk, g in d.groupby(keys, sort=True, dropna=False):
         gk = gk if isinstance(gk, tuple) else (gk,)
@@ -246,7 +246,7 @@ def main_table(rows: pd.DataFrame) -> pd.DataFrame:
     ran on (:func:`common_ranks`; ``attrs["ranked_on"]``: (problems used, problems in all)), sorted by it."""
     used, n_used, n_all = common_ranks(rows)
     ranks = used.groupby("label")["rank"].agg(["mean", "size"])
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     recs = []
     for label in sorted(rows["label"].unique()):
         rec = {"planner": label}
@@ -283,7 +283,7 @@ def versus_best_table(rows: pd.DataFrame, main: pd.DataFrame,
     ``<name>_lo``, ``<name>_hi``, ``<name>_cells``, in main-table order) and the best label."""
     contenders = [str(p) for p in main["planner"] if p not in exclude]
     best = contenders[0]
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     recs = []
     for label in contenders[1:]:
         rec = {"planner": label}
@@ -302,7 +302,7 @@ def policy_table(rows: pd.DataFrame) -> pd.DataFrame:
     mean relative regret (%) of its incumbents (what the ranking uses) and of its greedy policy's layouts,
     each with a 95 % CI over the same cells (columns ``<name>``, ``<name>_lo``, ``<name>_hi`` and
     ``<name> policy``...)."""
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     if "policy_relative_regret" not in scored:
         return pd.DataFrame()
     scored = scored.assign(policy_pct=scored["policy_relative_regret"] * 100)
@@ -329,7 +329,7 @@ def show_policy(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _position_regrets(row, refs: dict) -> np.ndarray | None:
+def position_regrets(row, refs: dict) -> np.ndarray | None:
     """A row's relative regret (%) on each task it is scored on, against the reference's value there
     (held-out rows: the held-out tasks); None without a per-task list or a reference."""
     ref = refs.get(reference_of(row))
@@ -353,7 +353,7 @@ def iqm_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
     deformation's regret, so a few positions where a planner is far off weigh in it; the IQM drops the
     best and worst quarter of (run, position) pairs. Shared-mode cells (scored by their worst task) are
     left out."""
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     scored = scored[scored["mode"].isin(["per-task", "held-out"])]
     columns = [(n, c, m) for n, c, m in main_columns(rows) if m != "shared"]
     recs = []
@@ -361,7 +361,7 @@ def iqm_table(rows: pd.DataFrame, refs: dict) -> pd.DataFrame:
         rec = {"planner": label}
         for name, case, mode in columns:
             pick = (scored["label"] == label) & _in_column(scored, case, mode)
-            regrets = [r for r in (_position_regrets(row, refs) for _, row in scored[pick].iterrows())
+            regrets = [r for r in (position_regrets(row, refs) for _, row in scored[pick].iterrows())
                        if r is not None]
             values = np.concatenate(regrets) if regrets else np.array([])
             strata = np.concatenate([np.arange(len(r)) for r in regrets]) if regrets else None
@@ -401,7 +401,7 @@ def headline_table(rows: pd.DataFrame, iq: pd.DataFrame, family_of: dict[str, st
     families = [f for f in FAMILIES if f in fam.values()]
     families += sorted({f for f in fam.values() if f not in FAMILIES and f not in NOT_COMPARED})
     columns = {name: (case, mode) for name, case, mode in main_columns(rows)}
-    scored = _scored(rows)
+    scored = scored_cells(rows)
     recs = []
     for name in [c for c in iq.columns if c in columns]:
         values = iq.set_index("planner")[[name, f"{name}_lo", f"{name}_hi"]].dropna()

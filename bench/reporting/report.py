@@ -357,6 +357,7 @@ def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.Data
     else:
         w.skip("Reference table", "the run has no usable regret reference (reference/*.json)")
     sweep = _comparison_sections(w, rows, refs)
+    _families_section(w, rows, refs)
     profile = None
     if not rows["ok"].any():
         w.skip("Performance profile table", "no successful cells")
@@ -375,6 +376,36 @@ def _table_sections(w: _Writer, rows: pd.DataFrame, refs: dict) -> tuple[pd.Data
         f["error"] = f["error"].str.slice(0, 120)
         w.table("failed", f, f, "Failed cells (left out of every statistic), with their error.")
     return sweep, profile
+
+
+def _families_section(w: _Writer, rows: pd.DataFrame, refs: dict) -> None:
+    """The answer over families of generated parts (:mod:`fixbench.bench.reporting.families`), where the run
+    has per-task cells on a shipped suite's parts."""
+    from fixbench.bench.reporting import families as fam
+
+    iq = fam.family_iqm_table(rows, refs)
+    if iq.empty:
+        return
+    w.md += ["## Generated parts: families", ""]
+    w.table("family_iqm", iq, fam.show_family_iqm(iq),
+            "Per family of generated parts and samples a position k, and over every part at each k: the "
+            "interquartile mean (rliable) of each entry's per-position relative regret (%) against the proven "
+            "optima, its cells pooled, with a 95 % stratified-bootstrap CI (resampled within each part and "
+            f"position; {N_BOOT} resamples, fixed seed).")
+    head = fam.family_headline(rows, iq, {r["planner"]: r["family"] for r in listing()})
+    if len(head):
+        w.table("family_headline", head, fam.show_family_headline(head),
+                "Best of each family of planners per family of parts and k, by the IQM above, with its CI; "
+                "last line: rliable's probability that a cell of the best learning entry (MARL or bandit) ends "
+                "with a lower relative regret than a cell of the best other entry, with its 95 % CI.")
+    tau = fam.rank_correlation_table(iq)
+    if len(tau):
+        w.table("family_rank_correlation", tau, fam.show_rank_correlation(tau),
+                "Kendall's tau-b between the entries' orders by IQM in two families of parts (and the pool) at "
+                "the same k, over the entries ranked in both: 1, the same order; 0, unrelated; -1, reversed.")
+    w.figure("cpu_regret", fam.cpu_regret_figure(rows, iq),
+             "Regret against CPU: each entry's median CPU seconds a cell beside its IQM relative regret over "
+             "every part, one panel a k (the cells' `cpu_s`, on the machine that ran them).")
 
 
 def _figure_sections(w: _Writer, runs: Runs, rows: pd.DataFrame, refs: dict, colors: dict,
