@@ -19,7 +19,7 @@ from fixbench.bench.running.matrix import load_matrix
 from fixbench.cases.errors import CaseError, FixbenchError
 from fixbench.cases.families import FAMILIES, Choice, family
 from fixbench.cases.families.base import case_text
-from fixbench.cases.families.suites import SUITE_DIR, load_suite
+from fixbench.cases.families.suites import SUITE_DIR, expand_suites, load_suite, suite_cases
 from fixbench.cases.problem import load_problem
 from fixbench.cases.references import case_fingerprint
 from fixbench.cases.spec import load_case_spec, resolve_case
@@ -289,3 +289,10 @@ def test_the_report_of_a_run_on_generated_parts_answers_per_family(tmp_path):
     tau = pd.read_csv(made["tables"]["family_rank_correlation"])
     assert len(tau) == 3 and tau["kendall_tau"].between(-1, 1).all()  # blade-bracket, blade-all, bracket-all
     assert "cpu_regret" in made["figures"] and "family_headline" in made["tables"]
+
+
+def test_a_suite_name_stands_for_its_parts_where_cases_are_listed():
+    train = json.loads((SUITE_DIR / "families-train" / "suite.json").read_text())
+    names = [p["name"] for p in train["parts"]]
+    assert expand_suites(["fan_small", "families-train"]) == ["fan_small", *names]
+    assert suite_cases("families-nope") is None

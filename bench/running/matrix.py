@@ -139,13 +139,13 @@ def _beside(matrix: Path, case: str) -> str:
 
 def suite_parts(r: Reader, suite: str) -> list[str]:
     """The case names of a shipped suite's generated parts (``suites = [...]``: docs/families.md#suites)."""
-    from fixbench.cases.families.suites import SUITE_DIR, shipped_suites
+    from fixbench.cases.families.suites import shipped_suites, suite_cases
 
-    manifest = SUITE_DIR / suite / "suite.json"
-    if suite not in shipped_suites() or not manifest.is_file():
+    names = suite_cases(suite)
+    if names is None:
         raise r.error("suites", f"'{suite}' is not a shipped suite with its parts generated (shipped: "
                       f"{', '.join(shipped_suites())})")
-    return [Path(p["file"]).stem for p in json.loads(manifest.read_text(encoding="utf-8"))["parts"]]
+    return names
 
 
 def _list(r: Reader, key: str, kind, default=...) -> list:

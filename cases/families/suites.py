@@ -18,6 +18,7 @@ is drawn: a mistake is one line naming the file and the key.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -106,3 +107,17 @@ def load_suite(name_or_path: str | Path) -> Suite:
         raise r.error("parts", "a family and seed appear twice: give each generation its own seed")
     r.finish()
     return Suite(name, description, tuple(generations), source)
+
+
+def suite_cases(name: str) -> list[str] | None:
+    """The case names of the generated parts of the shipped suite ``name`` (its ``suite.json``), or None
+    where ``name`` is no shipped suite with its parts generated."""
+    manifest = SUITE_DIR / name / "suite.json"
+    if name not in shipped_suites() or not manifest.is_file():
+        return None
+    return [Path(p["file"]).stem for p in json.loads(manifest.read_text(encoding="utf-8"))["parts"]]
+
+
+def expand_suites(names) -> list[str]:
+    """``names`` with each shipped suite's name replaced by its parts' case names."""
+    return [c for n in names for c in (suite_cases(n) or [n])]

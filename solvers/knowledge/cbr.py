@@ -75,6 +75,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from fixbench.cases import cache
+from fixbench.cases.families.suites import expand_suites
 from fixbench.cases.files import write_text_atomic
 from fixbench.cases.materials import engineering_constants
 from fixbench.cases.problem import Problem, load_problem
@@ -103,7 +104,8 @@ class CBRConfig(PlannerConfig):
     empty: built from ``bootstrap`` in memory for this process, never written."""
 
     bootstrap: tuple[str, ...] = ("fan_small", "wing_panel_small", "wing_spar_small", "bus_panel_small")
-    """Cases (catalog material) solved into a new library when the library file does not exist."""
+    """Cases (catalog material) solved into a new library when the library file does not exist; the name
+    of a shipped suite (``families-train``) stands for all its generated parts."""
 
     bootstrap_budget: int = 50
     """Samples per task the library-building planner gets when bootstrapping."""
@@ -265,7 +267,7 @@ def bootstrap_library(cases: tuple[str, ...], per_task_budget: int) -> dict:
     budget and the source of every planner module; elsewhere it is built in memory. The build is
     deterministic (seed 0), so a stored library is the one a build would give.
     """
-    problems = [load_problem(c) for c in cases]
+    problems = [load_problem(c) for c in expand_suites(cases)]
     content = hashlib.sha1(pickle.dumps(([p.spec for p in problems], per_task_budget)))
     for module in sorted(Path(__file__).parent.glob("*.py")):
         content.update(module.read_bytes())
@@ -398,7 +400,7 @@ class CaseBasedReasoning(Planner):
         if cfg.library:
             path = Path(cfg.library).expanduser()
             if not path.exists() and cfg.bootstrap:
-                build_library([load_problem(c) for c in cfg.bootstrap], budget=None, path=path,
+                build_library([load_problem(c) for c in expand_suites(cfg.bootstrap)], budget=None, path=path,
                               per_task_budget=cfg.bootstrap_budget)
             return load_library(path), str(path)
         key = (cfg.bootstrap, cfg.bootstrap_budget)
