@@ -9,6 +9,8 @@ and key for a missing key, an unknown unit, a wrong type, a non-finite number or
 from __future__ import annotations
 
 import math
+import tomllib
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -183,3 +185,20 @@ class Reader:
 def _show(value: Any) -> str:
     arr = np.asarray(value, dtype=float)
     return f"{float(arr):g}" if arr.ndim == 0 else f"{arr.min():g} (smallest)"
+
+
+def file_reader(path: Path, keys: tuple[str, ...], missing: str) -> Reader:
+    """A TOML file's top table, read strictly: a missing file (``missing`` says what to give instead),
+    TOML that does not parse, or a top-level key outside ``keys`` is a one-line :class:`CaseError`."""
+    source = str(path)
+    if not path.is_file():
+        raise CaseError(source, "", missing)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(source, "", f"not valid TOML ({exc})") from None
+    r = Reader(data, source)
+    for key in data:
+        if key not in keys:
+            raise r.error(key, f"unknown key (known: {', '.join(keys)})")
+    return r

@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from fixbench.bench.records.rows import DEFAULT_MODE, MODES
 from fixbench.cases.errors import CaseError
 from fixbench.cases.materials import MATERIALS
 from fixbench.cases.spec import load_case_spec, resolve_case
-from fixbench.cases.units import Reader
+from fixbench.cases.units import Reader, file_reader
 
 KEYS = ("name", "cases", "suites", "materials", "per_case", "planners", "seeds", "budget", "samples_per_task",
         "agents", "mode", "tasks", "heldout_every", "proof_limit", "description")
@@ -209,18 +208,8 @@ def load_matrix(path: str | Path) -> Matrix:
     from fixbench.solvers.registry import get, names
 
     path = find_matrix(path)
-    source = str(path)
-    if not path.is_file():
-        raise CaseError(source, "", "no such matrix file (shipped matrices: "
-                        + ", ".join(shipped_matrices()) + ")")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CaseError(source, "", f"not valid TOML ({exc})") from None
-    r = Reader(data, source)
-    for key in data:
-        if key not in KEYS:
-            raise r.error(key, f"unknown key (known: {', '.join(KEYS)})")
+    r = file_reader(path, KEYS, f"no such matrix file (shipped matrices: {', '.join(shipped_matrices())})")
+    source, data = r.source, r.data
     name = r.text("name", path.stem)
     r.text("description", "")
     cases = []

@@ -19,14 +19,12 @@ is drawn: a mistake is one line naming the file and the key.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fixbench.cases.errors import CaseError
 from fixbench.cases.families import FAMILIES, FamilyError, family
 from fixbench.cases.spec import SUITES
-from fixbench.cases.units import Reader
+from fixbench.cases.units import file_reader
 
 #: the shipped suites' folder: NAME.toml and its generated parts in NAME/
 SUITE_DIR = SUITES
@@ -74,17 +72,8 @@ def find_suite(name_or_path: str | Path) -> Path:
 def load_suite(name_or_path: str | Path) -> Suite:
     """Read and check a suite file (see the module docstring)."""
     path = find_suite(name_or_path)
-    source = str(path)
-    if not path.is_file():
-        raise CaseError(source, "", f"no such suite file (shipped suites: {', '.join(shipped_suites())})")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CaseError(source, "", f"not valid TOML ({exc})") from None
-    r = Reader(data, source)
-    for key in data:
-        if key not in KEYS:
-            raise r.error(key, f"unknown key (known: {', '.join(KEYS)})")
+    r = file_reader(path, KEYS, f"no such suite file (shipped suites: {', '.join(shipped_suites())})")
+    source = r.source
     name, description = r.text("name", path.stem), r.text("description", "")
     generations = []
     for g in r.tables("parts"):
