@@ -275,8 +275,8 @@ class Evaluator:
     """
 
     def __init__(self, problem: Problem, budget: int | None = None, tasks=None):
-        if budget is not None and budget <= 0:  # the one check of a budget (every planner, every command)
-            raise CaseError("--budget", "", f"must be positive, got {budget}")
+        if budget is not None and budget < 0:  # the one check of a budget (every planner, every command)
+            raise CaseError("--budget", "", f"must be positive (or 0: no sample at all), got {budget}")
         self.problem = problem
         self.budget = budget
         self.samples = 0

@@ -341,6 +341,9 @@ class Planner(ABC):
     #: True for a learner whose returned layouts are its greedy policy's (not its incumbents): the
     #: policy is then always scored as the second figure ``policy``
     returns_policy: ClassVar[bool] = False
+    #: True for a planner that acts with no sample at all (k = 0, a budget of 0): a layout for every
+    #: position from what it brings to the problem (hand rules, a case library), none evaluated
+    zero_shot: ClassVar[bool] = False
     #: False for a planner whose results follow the host's floating-point code paths (PyTorch training:
     #: the BLAS kernels a CPU type gets, the thread count): the same bits on the same machine only, so
     #: ``fixbench verify`` judges a rerun elsewhere by its group's spread over seeds, not to 1e-9
@@ -407,7 +410,10 @@ class Planner(ABC):
             held = np.setdiff1d(np.arange(problem.n_tasks), np.asarray(train_tasks, dtype=np.int64))
             if len(held) == 0:
                 raise PlannerError("the held-out track needs at least one task outside the training tasks")
-        ev = TracedEvaluator(problem, budget, train_tasks)  # refuses a budget that is not positive
+        if budget == 0 and not self.zero_shot:
+            raise PlannerError(f"--budget 0: planner '{self.name}' cannot act with zero samples (k = 0): it has "
+                               "nothing to place pads by before it samples")
+        ev = TracedEvaluator(problem, budget, train_tasks)  # refuses a negative budget; 0 evaluates nothing
         layouts, info, training = (*self.plan(problem, ev, np.random.default_rng(seed), mode), None)[:3]
         layouts = np.asarray(layouts).reshape(problem.n_tasks, problem.n_agents)
         if held is not None:

@@ -203,12 +203,13 @@ def listing() -> list[dict]:
             module, _, cls = spec.partition(":")
             rows[name] = {"planner": name, "description": _lookup(module, cls, "description", ""),
                           "family": _lookup(module, cls, "family", Planner.family),
-                          "modes": list(_lookup(module, cls, "modes", Planner.modes)), "module": module}
+                          "modes": list(_lookup(module, cls, "modes", Planner.modes)),
+                          "zero_shot": bool(_lookup(module, cls, "zero_shot", Planner.zero_shot)), "module": module}
     return [rows[n] for n in sorted(rows)]
 
 
 def _row(name: str, cls: type[Planner]) -> dict:
     """What :func:`listing` says of an imported planner class."""
     return {"planner": name, "description": cls.description, "family": cls.family, "modes": list(cls.modes),
-            "module": cls.__module__}
+            "zero_shot": bool(cls.zero_shot), "module": cls.__module__}
 

@@ -231,7 +231,7 @@ SOLVE_BAD = [
     (["--planner", "random", "--set", "batch"], ["--set batch", "key=value"]),
     (["--planner", "random", "--set", "colour=red"], ["--set colour=red", "no setting 'colour'"]),
     (["--planner", "random", "--set", "batch=many"], ["--set batch=many", "invalid literal"]),
-    (["--planner", "random", "--budget", "0"], ["--budget", "must be positive"]),
+    (["--planner", "random", "--budget", "0"], ["--budget 0", "cannot act with zero samples"]),
     (["--planner", "random", "--budget", "-5"], ["--budget", "must be positive"]),
     (["--planner", "no_module_here:Planner"], ["no_module_here:Planner", "cannot import"]),
     (["--planner", "random", "--mode", "both"], ["--mode"]),

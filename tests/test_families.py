@@ -269,10 +269,16 @@ def test_the_report_of_a_run_on_generated_parts_answers_per_family(tmp_path):
 
     cases = ["blade_s1000_000", "bracket_s1000_000"]
     matrix = tmp_path / "m.toml"
-    matrix.write_text(f'cases = {json.dumps(cases)}\nseeds = [0, 1]\nsamples_per_task = [10]\nmode = "per-task"\n'
-                      'planners = ["random", "greedy", "local"]\n')
+    matrix.write_text(f'cases = {json.dumps(cases)}\nseeds = [0, 1]\nsamples_per_task = [0, 10]\nmode = "per-task"\n'
+                      'planners = ["random", "greedy", "local", "rules"]\n')
     assert main(["run", str(matrix), "--out", str(tmp_path / "run"), "--workers", "1"]) == 0
     made = make_report(tmp_path / "run", fields=False)
+    rows = [json.loads(f.read_text()) for f in (tmp_path / "run" / "rows").glob("*.json")]
+    # k = 0: only rules acts without a sample (2 parts x 2 seeds), spending none
+    assert sorted((r["planner"], r["samples"]) for r in rows if r["samples_per_task"] == 0) == [("rules", 0)] * 4
+    assert len(rows) == 2 * 2 * (4 + 1) and not any(r["error"] for r in rows)
+    shown = (tmp_path / "run" / "report" / "tables" / "family_iqm.md").read_text()
+    assert "cannot act" in next(line for line in shown.splitlines() if line.startswith("| random"))
     iq = pd.read_csv(made["tables"]["family_iqm"]).set_index("planner")
     assert {"blade, k=10", "bracket, k=10", "all parts, k=10"} <= set(iq.columns)
     opt = {}
@@ -288,7 +294,26 @@ def test_the_report_of_a_run_on_generated_parts_answers_per_family(tmp_path):
     assert iq.loc["random", "all parts, k=10"] == pytest.approx(iqm(np.concatenate(regrets)), rel=1e-9)
     tau = pd.read_csv(made["tables"]["family_rank_correlation"])
     assert len(tau) == 3 and tau["kendall_tau"].between(-1, 1).all()  # blade-bracket, blade-all, bracket-all
+    assert (tau["k"] == 10).all()  # at k = 0 only rules acts: no order to compare
     assert "cpu_regret" in made["figures"] and "family_headline" in made["tables"]
+
+
+def test_only_a_zero_shot_planner_acts_with_no_sample():
+    """k = 0: rules and cbr act on a part they never sampled (cbr: its nearest cases' adaptations,
+    unevaluated); a planner that needs samples is refused in one line; a matrix's 0 gives cells to the
+    zero-shot entries only."""
+    from fixbench.solvers.base import PlannerError
+    from fixbench.solvers.registry import get
+
+    problem = load_problem("blade_s1000_000")
+    for name, config in (("rules", {}), ("cbr", {"bootstrap": ("fan_small",)})):
+        res = get(name)(get(name).Config(**config)).solve(problem, 0)
+        assert res.samples == 0 and (res.layouts >= 0).all() and np.isfinite(res.objective)
+    with pytest.raises(PlannerError, match="cannot act with zero samples"):
+        get("greedy")().solve(problem, 0)
+    m = load_matrix(Path(__file__).parents[1] / "bench" / "matrices" / "families.toml")
+    zero = {c.label or c.planner for c in m.cells() if c.samples_per_task == 0}
+    assert zero == {"rules", "cbr (other parts)", "cbr (families-train)"}
 
 
 def test_a_suite_name_stands_for_its_parts_where_cases_are_listed():

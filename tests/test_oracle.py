@@ -126,9 +126,12 @@ def test_compliance_columns_are_charged():
         problem.evaluator(budget=1).compliance("membrane", [0])
 
 
-def test_budget_must_be_positive():
+def test_budget_must_be_positive_or_zero():
+    problem = load_problem("wing_panel_small")
     with pytest.raises(CaseError, match="must be positive"):
-        load_problem("wing_panel_small").evaluator(budget=0)
+        problem.evaluator(budget=-1)
+    with pytest.raises(BudgetExhausted):  # 0: no sample at all (k = 0)
+        problem.evaluator(budget=0).evaluate(0, [[a[0] for a in problem.action_sets]])
 
 
 def test_fixtures_reduce_deformation():

@@ -173,7 +173,7 @@ def test_listing_reads_the_builtins_without_importing_them():
     from fixbench.solvers.registry import BUILTIN
 
     imported = {n: {"planner": n, "description": c.description, "family": c.family, "modes": list(c.modes),
-                     "module": c.__module__}
+                     "zero_shot": c.zero_shot, "module": c.__module__}
                 for n, c in available().items() if n in BUILTIN}  # this process may hold other tests' planners
     assert {r["planner"]: r for r in rows if r["planner"] in BUILTIN} == imported
     assert {r["planner"] for r in rows} >= set(BUILTIN)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -86,9 +85,13 @@ def _names(iq: pd.DataFrame) -> list[str]:
 
 
 def show_family_iqm(iq: pd.DataFrame) -> pd.DataFrame:
+    """``IQM [lo, hi]`` per column; at k = 0 an entry with no cell cannot act without a sample."""
     out = pd.DataFrame({"planner": iq["planner"]})
     for name in _names(iq):
-        out[name] = ci_column(iq, name)
+        shown = ci_column(iq, name)
+        if name.endswith("k=0"):
+            shown = [s if n else "cannot act" for s, n in zip(shown, iq[f"{name}_cells"])]
+        out[name] = shown
     return out.sort_values("planner").reset_index(drop=True)
 
 
@@ -135,7 +138,7 @@ def show_family_headline(head: pd.DataFrame) -> pd.DataFrame:
 
 def rank_correlation_table(iq: pd.DataFrame) -> pd.DataFrame:
     """Kendall's tau (tau-b) between the entries' IQM orders in every two columns with the same k, over
-    the entries with a value in both."""
+    the entries with a value in both (at least three)."""
     recs = []
     by_k: dict[str, list[str]] = {}
     for name in _names(iq):
@@ -143,7 +146,9 @@ def rank_correlation_table(iq: pd.DataFrame) -> pd.DataFrame:
     for k, names in by_k.items():
         for a, b in itertools.combinations(names, 2):
             both = iq[[a, b]].dropna()
-            tau = kendalltau(both[a], both[b]).statistic if len(both) >= 2 else math.nan
+            if len(both) < 3:  # two entries agree or not by a coin's toss: no order to compare
+                continue
+            tau = kendalltau(both[a], both[b]).statistic
             recs.append({"k": int(k), "a": a.rsplit(",", 1)[0], "b": b.rsplit(",", 1)[0], "entries": len(both),
                          "kendall_tau": float(tau)})
     return pd.DataFrame(recs, columns=["k", "a", "b", "entries", "kendall_tau"])

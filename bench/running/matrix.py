@@ -8,6 +8,7 @@ settings, so a rerun can skip what is done. The format is documented in docs/mat
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -34,6 +35,7 @@ class PlannerEntry:
     label: str = ""  # how reports name this entry (default: the name and its config)
     cases: tuple[str, ...] = ()  # the matrix's cases this entry runs on (empty: every one)
     modes: tuple[str, ...] = ()  # the matrix's modes (tracks) this entry runs in (empty: every one)
+    zero_shot: bool = False  # the planner acts with no sample: it gets the cells of samples_per_task 0
 
 
 @dataclass(frozen=True)
@@ -108,13 +110,16 @@ class Matrix:
 
         With ``samples_per_task`` (the budget sweep) the budgets are those values a task; a planner
         entry's ``max_samples_per_task`` drops the larger ones for it, and its own ``budget`` replaces
-        the sweep. Held-out cells carry ``heldout_every``."""
+        the sweep; a sweep's 0 (k = 0: no sample at all) is a per-task cell of the entries whose planner
+        acts without one (``Planner.zero_shot``) only. Held-out cells carry ``heldout_every``."""
         out = []
         sweep = [(None, s) for s in self.samples_per_task] or [(b, None) for b in self.budgets]
         combos = ((case, *rest) for case in self.cases for rest in itertools.product(
             self.of(case, "materials"), self.of(case, "agents"), self.modes, sweep, self.planners, self.seeds))
         for case, mat, agents, mode, (budget, spt), p, seed in combos:
             if spt is not None and p.max_samples_per_task is not None and spt > p.max_samples_per_task:
+                continue
+            if spt == 0 and not (p.zero_shot and mode == "per-task"):  # k = 0: only who can act without a sample
                 continue
             if (p.cases and case not in p.cases) or (p.modes and mode not in p.modes):
                 continue
@@ -134,6 +139,14 @@ def _beside(matrix: Path, case: str) -> str:
     """A case as the matrix means it: a case file is found beside the matrix (not in the current
     directory); a catalog name stays a name."""
     return str(matrix.parent / case) if case.endswith(".toml") and not Path(case).is_absolute() else case
+
+
+@functools.cache
+def zero_shot_planners() -> dict[str, bool]:
+    """Which registered planners act with no sample (``Planner.zero_shot``), read without importing them."""
+    from fixbench.solvers.registry import listing
+
+    return {r["planner"]: r["zero_shot"] for r in listing()}
 
 
 def suite_parts(r: Reader, suite: str) -> list[str]:
@@ -260,8 +273,8 @@ def load_matrix(path: str | Path) -> Matrix:
                 raise r.error("budget", f"must be positive whole numbers or \"unlimited\", got {b!r}")
     else:
         sweep = _list(r, "samples_per_task", int)
-        if any(v < 1 for v in sweep) or len(set(sweep)) != len(sweep):
-            raise r.error("samples_per_task", "must be distinct positive whole numbers")
+        if any(v < 0 for v in sweep) or len(set(sweep)) != len(sweep):
+            raise r.error("samples_per_task", "must be distinct whole numbers, 0 or more (0: no sample, k = 0)")
     agents = _list(r, "agents", int) if "agents" in data else [None]
     if any(a is not None and a < 1 for a in agents):
         raise r.error("agents", "must be at least 1")
@@ -331,7 +344,9 @@ def load_matrix(path: str | Path) -> Matrix:
         if pr.raw("tuning", None) is not None:  # how `fixbench tune` made the entry: checked, kept by no cell
             read_figures(pr.data["tuning"], source, pr.key("tuning"))
         pr.finish()
-        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks))
+        zero = cls.zero_shot if cfg or ":" in pname else zero_shot_planners().get(pname, False)
+        planners.append(PlannerEntry(pname, tuple(sorted(overrides.items())), budget, cap, label, only, tracks,
+                                     bool(zero)))
     _check_labels(r, planners, modes)
     r.used.update(data)
     return Matrix(name, source, tuple(cases), tuple(materials), tuple(planners), tuple(seeds),

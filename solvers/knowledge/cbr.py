@@ -336,6 +336,7 @@ class CaseBasedReasoning(Planner):
     family = "case-based"
     description = "case-based reasoning: nearest solved cases from a library, adapted, revised by local search"
     Config = CBRConfig
+    zero_shot = True  # with no sample, each position takes its nearest case's adaptation, unevaluated
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         cfg = self.config

@@ -140,6 +140,7 @@ class Rules(Planner):
     family = "rules"
     description = "fixturing rules by hand: a pad at the load, the others spread over free regions (zero samples)"
     Config = RulesConfig
+    zero_shot = True
 
     def plan(self, problem: Problem, ev: TracedEvaluator, rng: np.random.Generator, mode: str):
         d_sup = support_distance(problem.spec)
