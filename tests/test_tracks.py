@@ -104,7 +104,7 @@ def test_an_entry_may_be_written_once_a_track(tmp_path):
 
 @pytest.mark.parametrize("edit, words", [
     (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 6, 20]\nbudget = 100"), ["not both"]),
-    (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, 0]"), ["samples_per_task", "positive"]),
+    (("samples_per_task = [2, 6, 20]", "samples_per_task = [2, -1]"), ["samples_per_task", "0 or more"]),
     (("heldout_every = 3", ""), ["heldout_every", "held-out"]),
     (("heldout_every = 3", "heldout_every = 1"), ["heldout_every"]),
     (("[[planners]]\nname = \"random\"", "[[planners]]\nname = \"random\"\n[[planners]]\nname = \"random\""),
