@@ -20,7 +20,7 @@ from fixbench.cases.problem import task_subset
 from fixbench.cases.references import load_reference
 
 ROOT = Path(__file__).resolve().parents[1] / "results"
-RUNS = ["reference", "paper", "tiny", "cfrp_paper"]
+RUNS = ["reference", "paper", "tiny", "cfrp_paper", "families"]
 
 
 def _rows(run: str):
