@@ -12,6 +12,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+#: one xdist worker builds the wheel once for every test here (the module's fixture): two workers building
+#: from the same tree at once share its build/ folder, and one deletes what the other is copying
+pytestmark = pytest.mark.xdist_group("wheel")
 
 
 @pytest.fixture(scope="module")
