@@ -168,8 +168,7 @@ def _check_and_prove(tables: dict, header: list[str], path: Path, s: GenerateSet
     widths = reward_widths(problem, maxima, s.check)
     tables["reward"] = {"sigma_x_um": _um(widths["suggested_sigma_x_m"]),
                         "sigma_z_um": _um(widths["suggested_sigma_z_m"])}
-    write_text_atomic(path, case_text(tables, header), ".tmp")
-    problem = load_problem(path)
+    write_text_atomic(path, case_text(tables, header), ".tmp")  # the widths change no FE number: same problem
     optima = _prove(problem)
     ratio = max(t["w_m"] for t in optima) / problem.spec.thinnest
     if ratio > s.w_over_t:
